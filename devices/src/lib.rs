@@ -1,0 +1,19 @@
+//! Device layer of stagehand: capability traits, the actor handles that own each device,
+//! the motion physics shared by drivers and the planner, and rig descriptions (TOML).
+//!
+//! This crate knows nothing of the engine or the simulator (see DESIGN.md).
+
+pub mod axis;
+pub mod camera;
+pub mod cart;
+pub mod clock;
+pub mod error;
+pub mod frame;
+pub mod laser;
+pub mod motion;
+pub mod rig;
+pub mod switch_bank;
+pub mod trigger;
+
+pub use error::DeviceError;
+pub use frame::Frame;

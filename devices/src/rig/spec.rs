@@ -1,0 +1,307 @@
+//! The rig description schema. Every table rejects unknown keys; units are in the key names.
+
+use serde::{Deserialize, Serialize};
+
+use crate::motion::Kinematics;
+
+/// A whole rig as described in a TOML file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RigSpec {
+    pub rig: RigInfo,
+    #[serde(default, rename = "axis")]
+    pub axes: Vec<AxisSpec>,
+    #[serde(default, rename = "switch_bank")]
+    pub switch_banks: Vec<SwitchBankSpec>,
+    #[serde(default, rename = "lamp")]
+    pub lamps: Vec<LampSpec>,
+    #[serde(default, rename = "camera")]
+    pub cameras: Vec<CameraSpec>,
+    #[serde(default)]
+    pub trigger: Option<TriggerSpec>,
+    #[serde(default)]
+    pub laser: Option<LaserSpec>,
+    #[serde(default)]
+    pub cart: Option<CartSpec>,
+    #[serde(default)]
+    pub sim: SimSpec,
+}
+
+/// Name and purpose of the rig.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RigInfo {
+    pub name: String,
+    #[serde(default)]
+    pub description: String,
+}
+
+/// Which driver talks to a device. `sim` is the built-in simulated backend.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Backend {
+    Sim,
+    Grbl,
+    RelaySerial,
+    HidRelay,
+    IrBridge,
+    V4l,
+    Aravis,
+    Gphoto2,
+}
+
+/// What an axis moves, so the simulator knows how it changes the optical geometry.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AxisRole {
+    /// Rotates the sample about the vertical axis; 0° is the sample's X axis.
+    Turntable,
+    /// Rotates the light arc (lamps, laser mount) about the vertical axis.
+    LightArc,
+    /// Tilts the laser fan within the light arc's plane.
+    LaserTilt,
+    /// Any other axis; it moves but does not change what the cameras see.
+    Other,
+}
+
+/// A rotary stepper axis.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AxisSpec {
+    pub id: String,
+    pub backend: Backend,
+    #[serde(default)]
+    pub port: Option<String>,
+    pub role: AxisRole,
+    pub speed_deg_s: f64,
+    pub accel_deg_s2: f64,
+    pub min_deg: f64,
+    pub max_deg: f64,
+    /// Mechanical backlash taken up by always making the final approach in + direction.
+    #[serde(default)]
+    pub backlash_deg: f64,
+    /// Settling time after a move before a camera may expose.
+    #[serde(default)]
+    pub settle_s: f64,
+    /// Speed of the homing move toward the home switch at 0°.
+    #[serde(default = "default_homing_speed")]
+    pub homing_speed_deg_s: f64,
+    /// Microsteps per degree; positions are quantised to it.
+    #[serde(default = "default_steps_per_deg")]
+    pub steps_per_deg: f64,
+}
+
+fn default_homing_speed() -> f64 {
+    20.0
+}
+fn default_steps_per_deg() -> f64 {
+    3200.0 / 360.0 * 16.0
+}
+
+impl AxisSpec {
+    /// Cruise speed and acceleration.
+    pub fn kinematics(&self) -> Kinematics {
+        Kinematics { speed_deg_s: self.speed_deg_s, accel_deg_s2: self.accel_deg_s2 }
+    }
+}
+
+/// A bank of individually switched outputs (relay board, programmable PSU).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SwitchBankSpec {
+    pub id: String,
+    pub backend: Backend,
+    #[serde(default)]
+    pub port: Option<String>,
+    /// Number of channels, numbered from 1.
+    pub channels: u32,
+}
+
+/// What kind of light a switched channel powers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LampKind {
+    /// A halogen lamp on the light arc: a small, warm-white area source.
+    Halogen,
+    /// The reflectometer's linear fluorescent tube, carried by the cart.
+    Tube,
+    /// A diffuse backlight panel under the sample.
+    Backlight,
+}
+
+/// A light source wired to a switch-bank channel.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LampSpec {
+    pub id: String,
+    pub kind: LampKind,
+    /// Switch bank id and channel (from 1).
+    pub bank: String,
+    pub channel: u32,
+    /// Elevation on the light arc above the sample plane (halogen lamps).
+    #[serde(default)]
+    pub elevation_deg: f64,
+    /// Distance from the sample centre (halogen) or height above the sample (tube).
+    #[serde(default = "default_lamp_distance")]
+    pub distance_mm: f64,
+    /// Radiant power scale; 1.0 is the reference lamp.
+    #[serde(default = "one")]
+    pub power: f64,
+    /// Time after switch-on until the output is within 1% of steady state.
+    #[serde(default)]
+    pub warmup_s: f64,
+}
+
+fn default_lamp_distance() -> f64 {
+    800.0
+}
+fn one() -> f64 {
+    1.0
+}
+
+/// A camera on the fixed camera arc (or fixed above the reflectometer).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraSpec {
+    pub id: String,
+    pub backend: Backend,
+    #[serde(default)]
+    pub port: Option<String>,
+    pub width: u32,
+    pub height: u32,
+    /// Maximum frame rate; readout takes 1/fps.
+    pub fps: f64,
+    #[serde(default = "default_bit_depth")]
+    pub bit_depth: u8,
+    pub azimuth_deg: f64,
+    pub elevation_deg: f64,
+    pub distance_mm: f64,
+    /// Horizontal field of view.
+    pub fov_deg: f64,
+    #[serde(default = "default_min_exposure")]
+    pub min_exposure_s: f64,
+    #[serde(default = "default_max_exposure")]
+    pub max_exposure_s: f64,
+    #[serde(default = "default_max_gain")]
+    pub max_gain: f64,
+}
+
+fn default_bit_depth() -> u8 {
+    12
+}
+fn default_min_exposure() -> f64 {
+    1.0e-5
+}
+fn default_max_exposure() -> f64 {
+    10.0
+}
+fn default_max_gain() -> f64 {
+    16.0
+}
+
+impl CameraSpec {
+    /// Time to read the sensor out after an exposure.
+    pub fn readout_s(&self) -> f64 {
+        1.0 / self.fps
+    }
+}
+
+/// The trigger source that fires every armed camera at once.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TriggerSpec {
+    pub id: String,
+    pub backend: Backend,
+    #[serde(default)]
+    pub port: Option<String>,
+}
+
+/// The line laser on the light arc; its tilt is an axis.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LaserSpec {
+    pub id: String,
+    pub backend: Backend,
+    #[serde(default)]
+    pub port: Option<String>,
+    /// Wavelengths the lab owns (one fits at a time).
+    pub colours_nm: Vec<u32>,
+    /// Wavelength fitted when the run starts.
+    pub fitted_nm: u32,
+    /// Id of the axis that tilts the laser fan.
+    pub tilt_axis: String,
+    /// Elevation on the light arc where the unit is mounted when the run starts.
+    pub mount_elevation_deg: f64,
+    pub distance_mm: f64,
+    pub power_mw: f64,
+    /// 1/e² half-thickness of the laser sheet at the sample.
+    #[serde(default = "default_sheet")]
+    pub sheet_half_width_mm: f64,
+}
+
+fn default_sheet() -> f64 {
+    0.4
+}
+
+/// The reflectometer's DC-motor carriage carrying the linear light.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CartSpec {
+    pub id: String,
+    pub backend: Backend,
+    #[serde(default)]
+    pub port: Option<String>,
+    pub speed_mm_s: f64,
+    /// Travel between the end stops; the carriage starts at 0.
+    pub travel_mm: f64,
+}
+
+/// Simulation settings: the sample on the stage and the renderer's seed and quality.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimSpec {
+    /// Procedural sample: flat, bumps, steps, weave, checkerboard, colorchecker, planes.
+    #[serde(default = "default_sample")]
+    pub sample: String,
+    /// Edge length of the square sample.
+    #[serde(default = "default_sample_size")]
+    pub sample_size_mm: f64,
+    /// Renderer quality preset: preview, standard, reference.
+    #[serde(default = "default_quality")]
+    pub quality: String,
+}
+
+fn default_sample() -> String {
+    "bumps".into()
+}
+fn default_sample_size() -> f64 {
+    80.0
+}
+fn default_quality() -> String {
+    "preview".into()
+}
+
+impl Default for SimSpec {
+    fn default() -> Self {
+        Self { sample: default_sample(), sample_size_mm: default_sample_size(), quality: default_quality() }
+    }
+}
+
+impl RigSpec {
+    pub fn axis(&self, id: &str) -> Option<&AxisSpec> {
+        self.axes.iter().find(|a| a.id == id)
+    }
+    pub fn camera(&self, id: &str) -> Option<&CameraSpec> {
+        self.cameras.iter().find(|c| c.id == id)
+    }
+    pub fn bank(&self, id: &str) -> Option<&SwitchBankSpec> {
+        self.switch_banks.iter().find(|b| b.id == id)
+    }
+    pub fn lamp(&self, id: &str) -> Option<&LampSpec> {
+        self.lamps.iter().find(|l| l.id == id)
+    }
+    /// The first axis with the given role.
+    pub fn axis_with_role(&self, role: AxisRole) -> Option<&AxisSpec> {
+        self.axes.iter().find(|a| a.role == role)
+    }
+}

@@ -1,0 +1,14 @@
+//! stagehand: control software for an appearance-capture light stage and its laser scanners.
+//!
+//! Data flows one way: a Rhai script ([`script`]) emits a [`plan::Plan`]; [`validate`] and
+//! [`estimate`] check and cost it before anything moves; the [`executor`] runs it against the
+//! devices of a [`rig`] and hands frames to [`storage`], which makes them durable before the
+//! step's journal row commits.
+
+pub mod estimate;
+pub mod executor;
+pub mod plan;
+pub mod rig;
+pub mod script;
+pub mod storage;
+pub mod validate;
