@@ -1,1 +1,1148 @@
-//! (being written)
+//! Costing a plan before anything moves: rig time, frames, bytes and per-device usage, and the
+//! rig state the plan implies before each step (used by resume and the ETA).
+//!
+//! # The timing model
+//!
+//! The executor and the simulated devices follow exactly this model; the estimate is a pure
+//! fold over the steps on a rig clock that starts at 0 s.
+//!
+//! - **Start.** A run starts by homing every axis from the power-on state (every axis at 0°),
+//!   which takes 0 s, so a fresh estimate has no start-up cost. [`estimate_from`] starts from
+//!   the given [`RigState`] with no start-up cost either: re-establishing that state is the
+//!   executor's business. Lamps that are on in the start state count as switched on at 0 s
+//!   (the executor switches them on when it re-establishes the state), so their warm-up is
+//!   waited for again.
+//! - **Home{axes}.** All named axes home in parallel; each takes
+//!   `|position| / homing_speed_deg_s + settle_s` (it settles even if it was already at 0°);
+//!   the step takes the longest. Every homed axis ends at 0°.
+//! - **Move{targets}.** All named axes move in parallel; each takes
+//!   [`motion::move_duration_s`]`(from, to, kinematics, backlash_deg)` plus `settle_s` if it
+//!   moved at all; the step takes the longest. A move in the negative direction overshoots by
+//!   `backlash_deg` and comes back, so it travels `|Δ| + 2·backlash_deg`.
+//! - **Lamps.** Switching is instant. A lamp switched from off to on records its switch-on
+//!   time (for warm-up); switching a lamp to the state it is already in does nothing.
+//! - **Capture.** First wait until every lamp that is on has been on for at least its
+//!   `warmup_s`, and until `min_interval_s` has passed since the previous capture's first
+//!   trigger. Then, for each exposure `e` in order, fire one trigger and wait the longest
+//!   `e + 1/fps` over the listed cameras before the next trigger. The capture's first trigger
+//!   is the reference for the next capture's `min_interval_s`.
+//! - **LaserArm, LaserDisarm, Laser** take 0 s. **CartTo** takes `|Δmm| / speed_mm_s`.
+//!   **Prompt** takes 0 s of rig time (operator time is unknown; prompts are counted, and
+//!   lamp warm-up is not assumed to elapse during a prompt). **Wait** takes its seconds.
+//! - **Bytes** are an uncompressed upper bound: `width·height·3·2` per raw frame (16-bit
+//!   RGB) and `width·height·3·4` per HDR frame (32-bit float RGB).
+//!
+//! # Plans that do not validate
+//!
+//! The estimate never fails and never produces NaN or a negative number. Values that
+//! [`crate::validate::validate`] rejects are costed at the nearest meaningful value: unknown
+//! devices and non-finite values are skipped, axis targets are clamped to the soft limits, cart
+//! targets to the cart's travel, waits, exposures and capture intervals to [0 s, 24 h].
+//!
+//! # Per-device usage
+//!
+//! Every device of the rig gets a row in [`Estimate::per_device`], keyed by its id:
+//! axes (busy time, moves and homes as operations, degrees travelled), lamps (on time,
+//! switch operations), the laser (on time, on/off switches), cameras (frames, busy time
+//! = Σ exposure + readout), the cart (busy time, moves, millimetres travelled) and the trigger
+//! (fires as operations).
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use serde::{Deserialize, Serialize};
+use stagehand_devices::motion;
+use stagehand_devices::rig::RigSpec;
+
+use crate::plan::{Action, Plan};
+
+/// Longest wait, exposure or capture interval the planner accepts (24 h).
+pub const MAX_WAIT_S: f64 = 24.0 * 3600.0;
+
+/// Bytes per pixel of a raw frame as stored (16-bit RGB).
+pub const RAW_BYTES_PER_PIXEL: u64 = 3 * 2;
+
+/// Bytes per pixel of an HDR frame as stored (32-bit float RGB).
+pub const HDR_BYTES_PER_PIXEL: u64 = 3 * 4;
+
+/// What a plan costs: counts, bytes, rig time and how each device is used.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Estimate {
+    /// Number of steps estimated (all of them, or those from the starting step on).
+    pub steps: usize,
+    /// Number of capture steps.
+    pub captures: usize,
+    /// Raw frames (one per listed camera per exposure).
+    pub raw_frames: usize,
+    /// HDR frames (one per listed camera per HDR capture with more than one exposure).
+    pub hdr_frames: usize,
+    /// Uncompressed upper bound of the frame data in bytes.
+    pub bytes: u64,
+    /// Estimated rig time in seconds, excluding the operator's time at prompts.
+    pub rig_time_s: f64,
+    /// Number of prompts (each waits for an operator for an unknown time).
+    pub prompts: usize,
+    /// Usage of every device of the rig, keyed by device id.
+    pub per_device: BTreeMap<String, DeviceUsage>,
+    /// Cumulative rig time at the end of each step, indexed by step index (one entry per step
+    /// of the plan; steps before the starting step of [`estimate_from`] are 0).
+    pub step_end_s: Vec<f64>,
+}
+
+/// What kind of device a [`DeviceUsage`] row describes (decides its units).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum DeviceKind {
+    /// A rotary axis; travel in degrees.
+    #[default]
+    Axis,
+    /// A switched lamp.
+    Lamp,
+    /// The line laser.
+    Laser,
+    /// A camera.
+    Camera,
+    /// The reflectometer cart; travel in millimetres.
+    Cart,
+    /// The trigger source; operations are fires.
+    Trigger,
+}
+
+/// How much a plan uses one device.
+#[derive(Debug, Clone, PartialEq, Serialize, Default)]
+pub struct DeviceUsage {
+    /// Which kind of device this is.
+    pub kind: DeviceKind,
+    /// Time the device is busy: moving and settling (axes, cart) or exposing and reading out
+    /// (cameras).
+    pub busy_s: f64,
+    /// Moves and homes (axes, cart), switches between on and off (lamps, laser) or trigger
+    /// fires (trigger).
+    pub operations: usize,
+    /// Distance travelled: degrees for axes, millimetres for the cart.
+    pub travel: f64,
+    /// Time switched on (lamps, laser).
+    pub on_s: f64,
+    /// Frames returned (cameras).
+    pub frames: usize,
+}
+
+/// The state of the rig at a step boundary, as the plan implies it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RigState {
+    /// Position of every axis of the rig, in degrees.
+    pub axes_deg: BTreeMap<String, f64>,
+    /// Ids of the lamps that are on.
+    pub lamps_on: BTreeSet<String>,
+    /// Whether the laser is armed (it may be switched on).
+    pub laser_armed: bool,
+    /// Whether the laser is emitting.
+    pub laser_on: bool,
+    /// Wavelength of the fitted laser (0 on a rig without a laser).
+    pub laser_fitted_nm: u32,
+    /// Elevation on the light arc where the laser unit is mounted (0 on a rig without a laser).
+    pub laser_mount_deg: f64,
+    /// Position of the reflectometer cart from the - end stop (0 on a rig without a cart).
+    pub cart_mm: f64,
+    /// What lies on the stage: the rig's `sim.sample` or the fixture an operator placed.
+    pub fixture: String,
+}
+
+impl RigState {
+    /// The power-on state: axes at 0°, lamps off, laser disarmed and off with the rig's fitted
+    /// colour and mount elevation, cart at 0 mm, the rig's sample on the stage.
+    pub fn power_on(rig: &RigSpec) -> Self {
+        Self {
+            axes_deg: rig.axes.iter().map(|a| (a.id.clone(), 0.0)).collect(),
+            lamps_on: BTreeSet::new(),
+            laser_armed: false,
+            laser_on: false,
+            laser_fitted_nm: rig.laser.as_ref().map_or(0, |l| l.fitted_nm),
+            laser_mount_deg: rig.laser.as_ref().map_or(0.0, |l| l.mount_elevation_deg),
+            cart_mm: 0.0,
+            fixture: rig.sim.sample.clone(),
+        }
+    }
+
+    /// Applies one step's action. Devices the rig does not have and non-finite values are
+    /// ignored; axis targets are clamped to the soft limits and cart targets to the travel
+    /// (a plan that validates is applied exactly).
+    pub fn apply(&mut self, action: &Action, rig: &RigSpec) {
+        match action {
+            Action::Home { axes } => {
+                for id in axes {
+                    if rig.axis(id).is_some() {
+                        self.axes_deg.insert(id.clone(), 0.0);
+                    }
+                }
+            }
+            Action::Move { targets } => {
+                for (id, &target) in targets {
+                    if let Some(axis) = rig.axis(id)
+                        && target.is_finite()
+                    {
+                        self.axes_deg
+                            .insert(id.clone(), clamp_to(target, axis.min_deg, axis.max_deg));
+                    }
+                }
+            }
+            Action::Lamps { states } => {
+                for (id, &on) in states {
+                    if rig.lamp(id).is_none() {
+                        continue;
+                    }
+                    if on {
+                        self.lamps_on.insert(id.clone());
+                    } else {
+                        self.lamps_on.remove(id);
+                    }
+                }
+            }
+            Action::LaserArm => {
+                if rig.laser.is_some() {
+                    self.laser_armed = true;
+                }
+            }
+            Action::LaserDisarm => {
+                self.laser_armed = false;
+                self.laser_on = false;
+            }
+            Action::Laser { on, .. } => {
+                if rig.laser.is_some() {
+                    self.laser_on = *on;
+                }
+            }
+            Action::CartTo { position_mm } => {
+                if let Some(cart) = &rig.cart
+                    && position_mm.is_finite()
+                {
+                    self.cart_mm = clamp_to(*position_mm, 0.0, cart.travel_mm);
+                }
+            }
+            Action::Prompt {
+                fixture,
+                laser_mount_deg,
+                laser_fit_nm,
+                ..
+            } => {
+                if let Some(fixture) = fixture {
+                    self.fixture = fixture.clone();
+                }
+                if let Some(laser) = &rig.laser {
+                    if let Some(mount) = laser_mount_deg
+                        && mount.is_finite()
+                    {
+                        self.laser_mount_deg = mount.clamp(0.0, 90.0);
+                    }
+                    if let Some(nm) = laser_fit_nm
+                        && laser.colours_nm.contains(nm)
+                    {
+                        self.laser_fitted_nm = *nm;
+                    }
+                }
+            }
+            Action::Capture { .. } | Action::Wait { .. } => {}
+        }
+    }
+
+    /// This state with every value made usable on `rig`: an axis position for every axis of
+    /// the rig (missing or non-finite positions become 0°, others are clamped to the soft
+    /// limits), unknown lamps dropped, the cart clamped to its travel.
+    fn sanitised(&self, rig: &RigSpec) -> Self {
+        let mut state = self.clone();
+        state.axes_deg = rig
+            .axes
+            .iter()
+            .map(|a| {
+                let pos = self.axes_deg.get(&a.id).copied().filter(|p| p.is_finite());
+                (
+                    a.id.clone(),
+                    pos.map_or(0.0, |p| clamp_to(p, a.min_deg, a.max_deg)),
+                )
+            })
+            .collect();
+        state.lamps_on.retain(|id| rig.lamp(id).is_some());
+        state.laser_on &= rig.laser.is_some();
+        state.laser_armed &= rig.laser.is_some();
+        state.cart_mm = match &rig.cart {
+            Some(cart) if self.cart_mm.is_finite() => clamp_to(self.cart_mm, 0.0, cart.travel_mm),
+            _ => 0.0,
+        };
+        state
+    }
+}
+
+/// The rig state the plan implies just before step `index`: every earlier step applied to the
+/// power-on state. An `index` past the end gives the state after the last step.
+pub fn state_before(plan: &Plan, rig: &RigSpec, index: usize) -> RigState {
+    let mut state = RigState::power_on(rig);
+    for step in plan.steps.iter().take(index) {
+        state.apply(&step.action, rig);
+    }
+    state
+}
+
+/// Costs the whole plan from the power-on state.
+pub fn estimate(plan: &Plan, rig: &RigSpec) -> Estimate {
+    estimate_from(plan, rig, 0, &RigState::power_on(rig))
+}
+
+/// Costs the plan from step `from` on, starting in the rig state `start` (see the module doc
+/// for how a start state is treated). A `from` past the end gives an empty estimate.
+pub fn estimate_from(plan: &Plan, rig: &RigSpec, from: usize, start: &RigState) -> Estimate {
+    let mut run = Run::new(rig, start);
+    let mut step_end_s = vec![0.0; plan.steps.len()];
+    let mut steps = 0;
+    for (i, step) in plan.steps.iter().enumerate().skip(from) {
+        run.step(&step.action);
+        step_end_s[i] = run.now;
+        steps += 1;
+    }
+    run.finish();
+    Estimate {
+        steps,
+        captures: run.captures,
+        raw_frames: run.raw_frames,
+        hdr_frames: run.hdr_frames,
+        bytes: run.bytes,
+        rig_time_s: run.now,
+        prompts: run.prompts,
+        per_device: run.usage,
+        step_end_s,
+    }
+}
+
+/// `x` if it is a finite positive number, else 0.
+fn nonneg(x: f64) -> f64 {
+    if x.is_finite() && x > 0.0 { x } else { 0.0 }
+}
+
+/// `x` clamped to `[lo, hi]`, tolerating a malformed range (returns `lo`).
+fn clamp_to(x: f64, lo: f64, hi: f64) -> f64 {
+    if lo <= hi { x.clamp(lo, hi) } else { lo }
+}
+
+/// `distance / speed` as a duration, 0 for anything that is not a finite positive time.
+fn travel_time(distance: f64, speed: f64) -> f64 {
+    if distance > 0.0 && speed > 0.0 {
+        nonneg(distance / speed)
+    } else {
+        0.0
+    }
+}
+
+/// The estimate's running state.
+struct Run<'a> {
+    rig: &'a RigSpec,
+    state: RigState,
+    now: f64,
+    lamp_on_since: BTreeMap<String, f64>,
+    laser_on_since: Option<f64>,
+    last_first_trigger: Option<f64>,
+    captures: usize,
+    raw_frames: usize,
+    hdr_frames: usize,
+    bytes: u64,
+    prompts: usize,
+    usage: BTreeMap<String, DeviceUsage>,
+}
+
+impl<'a> Run<'a> {
+    fn new(rig: &'a RigSpec, start: &RigState) -> Self {
+        let state = start.sanitised(rig);
+        let mut usage = BTreeMap::new();
+        let mut add = |id: &str, kind| {
+            usage.insert(
+                id.to_string(),
+                DeviceUsage {
+                    kind,
+                    ..DeviceUsage::default()
+                },
+            );
+        };
+        for a in &rig.axes {
+            add(&a.id, DeviceKind::Axis);
+        }
+        for l in &rig.lamps {
+            add(&l.id, DeviceKind::Lamp);
+        }
+        if let Some(l) = &rig.laser {
+            add(&l.id, DeviceKind::Laser);
+        }
+        for c in &rig.cameras {
+            add(&c.id, DeviceKind::Camera);
+        }
+        if let Some(c) = &rig.cart {
+            add(&c.id, DeviceKind::Cart);
+        }
+        if let Some(t) = &rig.trigger {
+            add(&t.id, DeviceKind::Trigger);
+        }
+        let lamp_on_since = state.lamps_on.iter().map(|id| (id.clone(), 0.0)).collect();
+        let laser_on_since = state.laser_on.then_some(0.0);
+        Self {
+            rig,
+            state,
+            now: 0.0,
+            lamp_on_since,
+            laser_on_since,
+            last_first_trigger: None,
+            captures: 0,
+            raw_frames: 0,
+            hdr_frames: 0,
+            bytes: 0,
+            prompts: 0,
+            usage,
+        }
+    }
+
+    fn usage(&mut self, id: &str) -> Option<&mut DeviceUsage> {
+        self.usage.get_mut(id)
+    }
+
+    fn step(&mut self, action: &Action) {
+        let rig = self.rig;
+        let duration = match action {
+            Action::Home { axes } => self.home(axes),
+            Action::Move { targets } => self.move_axes(targets),
+            Action::Capture {
+                exposures_s,
+                cameras,
+                hdr,
+                min_interval_s,
+                ..
+            } => self.capture(exposures_s, cameras, *hdr, *min_interval_s),
+            Action::CartTo { position_mm } => self.cart_to(*position_mm),
+            Action::Prompt { .. } => {
+                self.prompts += 1;
+                0.0
+            }
+            Action::Wait { seconds } => nonneg(*seconds).min(MAX_WAIT_S),
+            Action::Lamps { .. }
+            | Action::LaserArm
+            | Action::LaserDisarm
+            | Action::Laser { .. } => 0.0,
+        };
+        // Switching happens at the start of the step (all switching steps take 0 s).
+        let before = self.state.clone();
+        self.state.apply(action, rig);
+        self.account_switches(&before);
+        self.now += nonneg(duration);
+    }
+
+    /// Records lamp and laser switches between `before` and the current state, at `now`.
+    fn account_switches(&mut self, before: &RigState) {
+        let now = self.now;
+        let switched_on: Vec<String> = self
+            .state
+            .lamps_on
+            .difference(&before.lamps_on)
+            .cloned()
+            .collect();
+        let switched_off: Vec<String> = before
+            .lamps_on
+            .difference(&self.state.lamps_on)
+            .cloned()
+            .collect();
+        for id in switched_on {
+            self.lamp_on_since.insert(id.clone(), now);
+            if let Some(u) = self.usage(&id) {
+                u.operations += 1;
+            }
+        }
+        for id in switched_off {
+            let since = self.lamp_on_since.remove(&id).unwrap_or(now);
+            if let Some(u) = self.usage(&id) {
+                u.operations += 1;
+                u.on_s += nonneg(now - since);
+            }
+        }
+        if before.laser_on != self.state.laser_on {
+            let since = self.laser_on_since.take();
+            if self.state.laser_on {
+                self.laser_on_since = Some(now);
+            }
+            if let Some(id) = self.rig.laser.as_ref().map(|l| l.id.clone())
+                && let Some(u) = self.usage(&id)
+            {
+                u.operations += 1;
+                if let Some(since) = since {
+                    u.on_s += nonneg(now - since);
+                }
+            }
+        }
+    }
+
+    fn home(&mut self, axes: &[String]) -> f64 {
+        let unique: BTreeSet<&String> = axes.iter().collect();
+        let mut longest: f64 = 0.0;
+        for id in unique {
+            let Some(axis) = self.rig.axis(id) else {
+                continue;
+            };
+            let pos = self.state.axes_deg.get(id).copied().unwrap_or(0.0);
+            let t = travel_time(pos.abs(), axis.homing_speed_deg_s) + nonneg(axis.settle_s);
+            if let Some(u) = self.usage(id) {
+                u.busy_s += t;
+                u.operations += 1;
+                u.travel += nonneg(pos.abs());
+            }
+            longest = longest.max(t);
+        }
+        longest
+    }
+
+    fn move_axes(&mut self, targets: &BTreeMap<String, f64>) -> f64 {
+        let mut longest: f64 = 0.0;
+        for (id, &target) in targets {
+            let Some(axis) = self.rig.axis(id) else {
+                continue;
+            };
+            if !target.is_finite() {
+                continue;
+            }
+            let from = self.state.axes_deg.get(id).copied().unwrap_or(0.0);
+            let to = clamp_to(target, axis.min_deg, axis.max_deg);
+            let backlash = nonneg(axis.backlash_deg);
+            let (t, travel) = if to == from {
+                (0.0, 0.0)
+            } else {
+                let t = nonneg(motion::move_duration_s(
+                    from,
+                    to,
+                    axis.kinematics(),
+                    backlash,
+                )) + nonneg(axis.settle_s);
+                let overshoot = if to < from { 2.0 * backlash } else { 0.0 };
+                (t, (to - from).abs() + overshoot)
+            };
+            if let Some(u) = self.usage(id) {
+                u.busy_s += t;
+                u.operations += 1;
+                u.travel += travel;
+            }
+            longest = longest.max(t);
+        }
+        longest
+    }
+
+    fn capture(
+        &mut self,
+        exposures_s: &[f64],
+        cameras: &[String],
+        hdr: bool,
+        min_interval_s: f64,
+    ) -> f64 {
+        let rig = self.rig;
+        let start = self.now;
+        // Lamp warm-up, then pacing against the previous capture's first trigger.
+        let mut first_trigger = start;
+        for id in &self.state.lamps_on {
+            if let (Some(lamp), Some(&since)) = (rig.lamp(id), self.lamp_on_since.get(id)) {
+                first_trigger = first_trigger.max(since + nonneg(lamp.warmup_s));
+            }
+        }
+        if let Some(previous) = self.last_first_trigger {
+            first_trigger = first_trigger.max(previous + nonneg(min_interval_s).min(MAX_WAIT_S));
+        }
+        self.last_first_trigger = Some(first_trigger);
+
+        let exposures: Vec<f64> = exposures_s
+            .iter()
+            .map(|&e| nonneg(e).min(MAX_WAIT_S))
+            .collect();
+        let unique: BTreeSet<&String> = cameras.iter().collect();
+        let known: Vec<_> = unique.iter().filter_map(|id| rig.camera(id)).collect();
+        let mut t = first_trigger;
+        for &e in &exposures {
+            let step = known
+                .iter()
+                .map(|c| e + travel_time(1.0, c.fps))
+                .fold(0.0, f64::max);
+            t += step;
+        }
+        for cam in &known {
+            let readout = travel_time(1.0, cam.fps);
+            let busy: f64 = exposures.iter().map(|e| e + readout).sum();
+            if let Some(u) = self.usage.get_mut(&cam.id) {
+                u.frames += exposures.len();
+                u.busy_s += busy;
+            }
+        }
+        if let Some(trigger) = &rig.trigger
+            && let Some(u) = self.usage.get_mut(&trigger.id)
+        {
+            u.operations += exposures.len();
+        }
+
+        let is_hdr = hdr && exposures_s.len() > 1;
+        self.captures += 1;
+        self.raw_frames += exposures_s.len() * cameras.len();
+        if is_hdr {
+            self.hdr_frames += cameras.len();
+        }
+        for id in cameras {
+            if let Some(cam) = rig.camera(id) {
+                let pixels = u64::from(cam.width) * u64::from(cam.height);
+                let raw = pixels
+                    .saturating_mul(RAW_BYTES_PER_PIXEL)
+                    .saturating_mul(exposures_s.len() as u64);
+                self.bytes = self.bytes.saturating_add(raw);
+                if is_hdr {
+                    self.bytes = self
+                        .bytes
+                        .saturating_add(pixels.saturating_mul(HDR_BYTES_PER_PIXEL));
+                }
+            }
+        }
+        nonneg(t - start)
+    }
+
+    fn cart_to(&mut self, position_mm: f64) -> f64 {
+        let Some(cart) = &self.rig.cart else {
+            return 0.0;
+        };
+        if !position_mm.is_finite() {
+            return 0.0;
+        }
+        let to = clamp_to(position_mm, 0.0, cart.travel_mm);
+        let distance = (to - self.state.cart_mm).abs();
+        let t = travel_time(distance, cart.speed_mm_s);
+        let id = cart.id.clone();
+        if let Some(u) = self.usage(&id) {
+            u.busy_s += t;
+            u.operations += 1;
+            u.travel += nonneg(distance);
+        }
+        t
+    }
+
+    /// Closes the on-time of whatever is still on at the end of the plan.
+    fn finish(&mut self) {
+        let now = self.now;
+        let open: Vec<(String, f64)> = std::mem::take(&mut self.lamp_on_since)
+            .into_iter()
+            .collect();
+        for (id, since) in open {
+            if let Some(u) = self.usage(&id) {
+                u.on_s += nonneg(now - since);
+            }
+        }
+        if let Some(since) = self.laser_on_since.take()
+            && let Some(id) = self.rig.laser.as_ref().map(|l| l.id.clone())
+            && let Some(u) = self.usage(&id)
+        {
+            u.on_s += nonneg(now - since);
+        }
+    }
+}
+
+/// The built-in rigs for tests, with the numbers the tests compute by hand pinned to the
+/// values of devices/rigs/*.toml when the tests were written (so a retuned rig file does not
+/// silently change the arithmetic under test).
+#[cfg(test)]
+pub(crate) mod test_rigs {
+    use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, BUILTIN_REFLECTOMETER, RigSpec, parse_rig};
+
+    fn pin_cameras(rig: &mut RigSpec) {
+        for c in &mut rig.cameras {
+            (c.width, c.height, c.fps) = (1024, 768, 15.0);
+            (c.min_exposure_s, c.max_exposure_s, c.max_gain) = (0.00002, 4.0, 16.0);
+        }
+    }
+
+    /// The built-in light stage.
+    pub(crate) fn lightstage() -> RigSpec {
+        let mut rig = parse_rig(BUILTIN_LIGHTSTAGE, "lightstage.toml").unwrap();
+        let axes = [
+            ("turntable", 30.0, 60.0, -180.0, 360.0, 0.05, 0.15, 40.0),
+            ("light_arc", 20.0, 40.0, -180.0, 360.0, 0.1, 0.3, 30.0),
+            ("laser_tilt", 10.0, 200.0, -30.0, 30.0, 0.02, 0.02, 10.0),
+        ];
+        assert_eq!(rig.axes.len(), axes.len());
+        for (a, (id, v, acc, min, max, backlash, settle, homing)) in rig.axes.iter_mut().zip(axes) {
+            assert_eq!(a.id, id);
+            (a.speed_deg_s, a.accel_deg_s2, a.min_deg, a.max_deg) = (v, acc, min, max);
+            (a.backlash_deg, a.settle_s, a.homing_speed_deg_s) = (backlash, settle, homing);
+        }
+        for l in &mut rig.lamps {
+            l.warmup_s = 0.8;
+        }
+        pin_cameras(&mut rig);
+        if let Some(l) = &mut rig.laser {
+            (l.colours_nm, l.fitted_nm, l.mount_elevation_deg) = (vec![650, 532, 473], 650, 45.0);
+        }
+        rig.sim.sample = "bumps".into();
+        rig
+    }
+
+    /// The built-in reflectometer.
+    pub(crate) fn reflectometer() -> RigSpec {
+        let mut rig = parse_rig(BUILTIN_REFLECTOMETER, "reflectometer.toml").unwrap();
+        if let Some(c) = &mut rig.cart {
+            (c.speed_mm_s, c.travel_mm) = (12.0, 240.0);
+        }
+        pin_cameras(&mut rig);
+        rig
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::plan::{SourcePos, Step};
+    use proptest::prelude::*;
+
+    use super::test_rigs::{lightstage, reflectometer};
+
+    fn plan(actions: Vec<Action>) -> Plan {
+        let steps = actions
+            .into_iter()
+            .enumerate()
+            .map(|(index, action)| Step {
+                index,
+                block: String::new(),
+                at: SourcePos {
+                    line: index as u32 + 1,
+                    col: 1,
+                },
+                action,
+            })
+            .collect();
+        Plan {
+            script: "test.rhai".into(),
+            params: BTreeMap::new(),
+            steps,
+        }
+    }
+
+    fn mv(targets: &[(&str, f64)]) -> Action {
+        Action::Move {
+            targets: targets.iter().map(|(k, v)| (k.to_string(), *v)).collect(),
+        }
+    }
+
+    fn lamps(states: &[(&str, bool)]) -> Action {
+        Action::Lamps {
+            states: states.iter().map(|(k, v)| (k.to_string(), *v)).collect(),
+        }
+    }
+
+    fn capture(exposures: &[f64], cameras: &[&str], hdr: bool, min_interval_s: f64) -> Action {
+        Action::Capture {
+            exposures_s: exposures.to_vec(),
+            cameras: cameras.iter().map(|c| c.to_string()).collect(),
+            gain: 1.0,
+            hdr,
+            label: String::new(),
+            min_interval_s,
+        }
+    }
+
+    fn close(a: f64, b: f64) -> bool {
+        (a - b).abs() < 1e-9
+    }
+
+    #[track_caller]
+    fn assert_close(a: f64, b: f64) {
+        assert!(close(a, b), "{a} != {b}");
+    }
+
+    #[test]
+    fn empty_plan_costs_nothing() {
+        let rig = lightstage();
+        let e = estimate(&plan(vec![]), &rig);
+        assert_eq!(e.steps, 0);
+        assert_eq!(e.rig_time_s, 0.0);
+        assert_eq!(e.bytes, 0);
+        assert!(e.step_end_s.is_empty());
+        assert_eq!(e.per_device.len(), 3 + 8 + 1 + 8 + 1);
+        assert!(
+            e.per_device
+                .values()
+                .all(|u| u.busy_s == 0.0 && u.on_s == 0.0 && u.travel == 0.0)
+        );
+        assert_eq!(e.per_device["turntable"].kind, DeviceKind::Axis);
+        assert_eq!(e.per_device["laser"].kind, DeviceKind::Laser);
+        assert_eq!(e.per_device["trigger"].kind, DeviceKind::Trigger);
+    }
+
+    #[test]
+    fn a_move_is_a_trapezoid_plus_settle() {
+        let rig = lightstage();
+        // turntable: 30 °/s, 60 °/s²: 0.5 s ramps covering 15°, 75° at cruise = 2.5 s; settle 0.15 s.
+        let e = estimate(&plan(vec![mv(&[("turntable", 90.0)])]), &rig);
+        assert_close(e.rig_time_s, 3.5 + 0.15);
+        assert_close(e.step_end_s[0], 3.65);
+        let u = &e.per_device["turntable"];
+        assert_close(u.busy_s, 3.65);
+        assert_close(u.travel, 90.0);
+        assert_eq!(u.operations, 1);
+    }
+
+    #[test]
+    fn a_zero_move_takes_no_time_and_no_settle() {
+        let rig = lightstage();
+        let e = estimate(&plan(vec![mv(&[("turntable", 0.0)])]), &rig);
+        assert_eq!(e.rig_time_s, 0.0);
+        assert_eq!(e.per_device["turntable"].travel, 0.0);
+    }
+
+    #[test]
+    fn a_negative_move_takes_up_backlash() {
+        let rig = lightstage();
+        let e = estimate(
+            &plan(vec![mv(&[("turntable", 90.0)]), mv(&[("turntable", 0.0)])]),
+            &rig,
+        );
+        // 90 → -0.05: 90.05° = 1 s of ramps + 75.05/30 s; -0.05 → 0: triangular, 2·sqrt(0.05/60).
+        let down = 1.0 + 75.05 / 30.0 + 2.0 * (0.05f64 / 60.0).sqrt() + 0.15;
+        assert_close(e.step_end_s[1] - e.step_end_s[0], down);
+        assert_close(e.rig_time_s, 3.65 + down);
+        assert_close(e.per_device["turntable"].travel, 180.1);
+        assert_eq!(e.per_device["turntable"].operations, 2);
+    }
+
+    #[test]
+    fn parallel_axes_take_the_longest() {
+        let rig = lightstage();
+        // light_arc: 20 °/s, 40 °/s²: 0.5 s ramps covering 10°, 80° at cruise = 4 s; settle 0.3 s.
+        let e = estimate(
+            &plan(vec![mv(&[("turntable", 90.0), ("light_arc", 90.0)])]),
+            &rig,
+        );
+        assert_close(e.rig_time_s, 5.3);
+        assert_close(e.per_device["turntable"].busy_s, 3.65);
+        assert_close(e.per_device["light_arc"].busy_s, 5.3);
+    }
+
+    #[test]
+    fn home_runs_at_homing_speed_and_always_settles() {
+        let rig = lightstage();
+        let home = Action::Home {
+            axes: vec!["turntable".into(), "light_arc".into()],
+        };
+        let e = estimate(&plan(vec![mv(&[("turntable", 90.0)]), home.clone()]), &rig);
+        // turntable 90° at 40 °/s + 0.15 s; light_arc at 0° still settles 0.3 s.
+        assert_close(e.step_end_s[1] - e.step_end_s[0], 90.0 / 40.0 + 0.15);
+        let e = estimate(&plan(vec![home]), &rig);
+        assert_close(e.rig_time_s, 0.3);
+    }
+
+    #[test]
+    fn a_capture_bracket_waits_exposure_plus_readout_per_trigger() {
+        let rig = lightstage();
+        let p = plan(vec![capture(
+            &[0.01, 0.1, 1.0],
+            &["cam1", "cam2"],
+            true,
+            0.0,
+        )]);
+        let e = estimate(&p, &rig);
+        assert_close(e.rig_time_s, 1.11 + 3.0 / 15.0);
+        assert_eq!(e.captures, 1);
+        assert_eq!(e.raw_frames, 6);
+        assert_eq!(e.hdr_frames, 2);
+        assert_eq!(e.raw_frames, p.raw_frames());
+        assert_eq!(e.hdr_frames, p.hdr_frames());
+        assert_eq!(e.bytes, 1024 * 768 * (6 * 6 + 2 * 12));
+        assert_eq!(e.per_device["cam1"].frames, 3);
+        assert_close(e.per_device["cam2"].busy_s, 1.11 + 3.0 / 15.0);
+        assert_eq!(e.per_device["cam3"].frames, 0);
+        assert_eq!(e.per_device["trigger"].operations, 3);
+    }
+
+    #[test]
+    fn capture_waits_for_lamp_warm_up() {
+        let rig = lightstage();
+        let e = estimate(
+            &plan(vec![
+                lamps(&[("lamp1", true)]),
+                capture(&[0.1], &["cam1"], false, 0.0),
+            ]),
+            &rig,
+        );
+        assert_close(e.rig_time_s, 0.8 + 0.1 + 1.0 / 15.0);
+        // The lamp was on from 0 s until the end.
+        assert_close(e.per_device["lamp1"].on_s, e.rig_time_s);
+        assert_eq!(e.per_device["lamp1"].operations, 1);
+    }
+
+    #[test]
+    fn a_move_covers_the_warm_up() {
+        let rig = lightstage();
+        let p = plan(vec![
+            lamps(&[("lamp1", true)]),
+            mv(&[("turntable", 90.0)]),
+            capture(&[0.1], &["cam1"], false, 0.0),
+            lamps(&[("lamp1", false)]),
+        ]);
+        let e = estimate(&p, &rig);
+        assert_close(e.rig_time_s, 3.65 + 0.1 + 1.0 / 15.0);
+        assert_close(e.per_device["lamp1"].on_s, e.rig_time_s);
+        assert_eq!(e.per_device["lamp1"].operations, 2);
+    }
+
+    #[test]
+    fn min_interval_paces_captures_from_first_trigger_to_first_trigger() {
+        let rig = lightstage();
+        let p = plan(vec![
+            capture(&[0.01], &["cam1"], false, 5.0),
+            capture(&[0.01], &["cam1"], false, 1.0),
+        ]);
+        let e = estimate(&p, &rig);
+        // The first capture has no predecessor; the second fires 1 s after the first fired.
+        assert_close(e.step_end_s[0], 0.01 + 1.0 / 15.0);
+        assert_close(e.rig_time_s, 1.0 + 0.01 + 1.0 / 15.0);
+    }
+
+    #[test]
+    fn laser_on_time_and_cart_and_wait() {
+        let rig = lightstage();
+        let p = plan(vec![
+            Action::LaserArm,
+            Action::Laser {
+                on: true,
+                colour_nm: 650,
+            },
+            Action::Wait { seconds: 2.0 },
+            Action::LaserDisarm,
+            Action::Wait { seconds: 1.0 },
+        ]);
+        let e = estimate(&p, &rig);
+        assert_close(e.rig_time_s, 3.0);
+        assert_close(e.per_device["laser"].on_s, 2.0);
+        assert_eq!(e.per_device["laser"].operations, 2);
+
+        let rig = reflectometer();
+        let p = plan(vec![
+            Action::CartTo { position_mm: 120.0 },
+            Action::CartTo { position_mm: 60.0 },
+        ]);
+        let e = estimate(&p, &rig);
+        assert_close(e.rig_time_s, 15.0);
+        assert_close(e.per_device["cart"].travel, 180.0);
+        assert_eq!(e.per_device["cart"].operations, 2);
+    }
+
+    #[test]
+    fn prompts_cost_no_rig_time() {
+        let rig = lightstage();
+        let prompt = Action::Prompt {
+            message: "place".into(),
+            fixture: Some("planes".into()),
+            laser_mount_deg: None,
+            laser_fit_nm: None,
+        };
+        let e = estimate(&plan(vec![prompt.clone(), prompt]), &rig);
+        assert_eq!(e.prompts, 2);
+        assert_eq!(e.rig_time_s, 0.0);
+    }
+
+    #[test]
+    fn state_before_folds_earlier_steps() {
+        let rig = lightstage();
+        let p = plan(vec![
+            mv(&[("turntable", 30.0), ("light_arc", -20.0)]),
+            lamps(&[("lamp2", true), ("lamp3", true)]),
+            Action::Prompt {
+                message: "fit".into(),
+                fixture: Some("checkerboard".into()),
+                laser_mount_deg: Some(30.0),
+                laser_fit_nm: Some(532),
+            },
+            Action::LaserArm,
+            Action::Laser {
+                on: true,
+                colour_nm: 532,
+            },
+            lamps(&[("lamp2", false)]),
+            Action::Home {
+                axes: vec!["turntable".into()],
+            },
+            Action::LaserDisarm,
+        ]);
+        let s0 = state_before(&p, &rig, 0);
+        assert_eq!(s0, RigState::power_on(&rig));
+        assert_eq!(s0.laser_fitted_nm, 650);
+        assert_eq!(s0.laser_mount_deg, 45.0);
+        assert_eq!(s0.fixture, "bumps");
+        assert_eq!(s0.axes_deg.len(), 3);
+
+        let s = state_before(&p, &rig, 5);
+        assert_eq!(s.axes_deg["turntable"], 30.0);
+        assert_eq!(s.axes_deg["light_arc"], -20.0);
+        assert_eq!(
+            s.lamps_on,
+            BTreeSet::from(["lamp2".to_string(), "lamp3".to_string()])
+        );
+        assert!(s.laser_armed && s.laser_on);
+        assert_eq!(s.laser_fitted_nm, 532);
+        assert_eq!(s.laser_mount_deg, 30.0);
+        assert_eq!(s.fixture, "checkerboard");
+
+        let end = state_before(&p, &rig, 8);
+        assert_eq!(end.axes_deg["turntable"], 0.0);
+        assert_eq!(end.lamps_on, BTreeSet::from(["lamp3".to_string()]));
+        assert!(!end.laser_armed && !end.laser_on);
+        assert_eq!(state_before(&p, &rig, 100), end);
+    }
+
+    #[test]
+    fn estimate_from_resumes_from_a_state() {
+        let rig = lightstage();
+        let p = plan(vec![
+            mv(&[("turntable", 90.0)]),
+            lamps(&[("lamp1", true)]),
+            capture(&[0.1], &["cam1"], false, 0.0),
+            mv(&[("turntable", 0.0)]),
+        ]);
+        let full = estimate(&p, &rig);
+        assert_eq!(estimate_from(&p, &rig, 0, &state_before(&p, &rig, 0)), full);
+        // From step 2 the lamp is on in the start state: its warm-up is waited for again.
+        let rest = estimate_from(&p, &rig, 2, &state_before(&p, &rig, 2));
+        assert_eq!(rest.steps, 2);
+        assert_eq!(rest.step_end_s.len(), 4);
+        assert_eq!(rest.step_end_s[0], 0.0);
+        assert_close(rest.step_end_s[2], 0.8 + 0.1 + 1.0 / 15.0);
+        let down = full.step_end_s[3] - full.step_end_s[2];
+        assert_close(rest.rig_time_s, rest.step_end_s[2] + down);
+        assert_eq!(rest.captures, 1);
+        let past = estimate_from(&p, &rig, 10, &state_before(&p, &rig, 10));
+        assert_eq!(past.steps, 0);
+        assert_eq!(past.rig_time_s, 0.0);
+    }
+
+    #[test]
+    fn degenerate_values_never_give_nan() {
+        let rig = lightstage();
+        let p = plan(vec![
+            Action::Home { axes: vec![] },
+            mv(&[]),
+            mv(&[
+                ("turntable", f64::NAN),
+                ("nope", 5.0),
+                ("light_arc", f64::INFINITY),
+            ]),
+            mv(&[("turntable", 1e308)]),
+            mv(&[("turntable", -1e308)]),
+            capture(&[], &[], true, f64::NAN),
+            capture(
+                &[f64::NAN, -1.0, f64::INFINITY],
+                &["cam1", "cam1", "cam99"],
+                true,
+                -5.0,
+            ),
+            Action::Wait { seconds: f64::NAN },
+            Action::Wait { seconds: -3.0 },
+            Action::Wait {
+                seconds: f64::INFINITY,
+            },
+            Action::CartTo { position_mm: 50.0 },
+            lamps(&[("lamp99", true)]),
+        ]);
+        let e = estimate(&p, &rig);
+        assert!(e.rig_time_s.is_finite() && e.rig_time_s >= 0.0);
+        assert!(e.step_end_s.iter().all(|t| t.is_finite() && *t >= 0.0));
+        for u in e.per_device.values() {
+            for v in [u.busy_s, u.travel, u.on_s] {
+                assert!(v.is_finite() && v >= 0.0);
+            }
+        }
+        // The bad start state of a resume is sanitised too.
+        let mut start = RigState::power_on(&rig);
+        start.axes_deg.insert("turntable".into(), f64::NAN);
+        start.cart_mm = f64::NAN;
+        let e = estimate_from(&p, &rig, 0, &start);
+        assert!(e.rig_time_s.is_finite());
+    }
+
+    fn any_f64() -> impl Strategy<Value = f64> {
+        prop_oneof![
+            4 => -400.0f64..400.0,
+            1 => 0.0f64..2.0,
+            1 => Just(f64::NAN),
+            1 => Just(f64::INFINITY),
+            1 => Just(f64::NEG_INFINITY),
+            1 => Just(1e308),
+            1 => Just(-1e308),
+        ]
+    }
+
+    fn any_id(ids: &'static [&'static str]) -> impl Strategy<Value = String> {
+        prop::sample::select(ids).prop_map(str::to_string)
+    }
+
+    fn any_action() -> impl Strategy<Value = Action> {
+        let axes: &'static [&'static str] = &["turntable", "light_arc", "laser_tilt", "nope"];
+        let lamp_ids: &'static [&'static str] = &["lamp1", "lamp2", "lamp8", "lamp9"];
+        let cams: &'static [&'static str] = &["cam1", "cam2", "cam8", "cam0"];
+        prop_oneof![
+            prop::collection::vec(any_id(axes), 0..3).prop_map(|axes| Action::Home { axes }),
+            prop::collection::btree_map(any_id(axes), any_f64(), 0..3)
+                .prop_map(|targets| Action::Move { targets }),
+            prop::collection::btree_map(any_id(lamp_ids), any::<bool>(), 0..3)
+                .prop_map(|states| Action::Lamps { states }),
+            Just(Action::LaserArm),
+            Just(Action::LaserDisarm),
+            (any::<bool>(), prop::sample::select(vec![650u32, 532, 808]))
+                .prop_map(|(on, colour_nm)| Action::Laser { on, colour_nm }),
+            (
+                prop::collection::vec(any_f64(), 0..4),
+                prop::collection::vec(any_id(cams), 0..3),
+                any::<bool>(),
+                any_f64()
+            )
+                .prop_map(|(exposures_s, cameras, hdr, min_interval_s)| {
+                    Action::Capture {
+                        exposures_s,
+                        cameras,
+                        gain: 1.0,
+                        hdr,
+                        label: String::new(),
+                        min_interval_s,
+                    }
+                }),
+            any_f64().prop_map(|position_mm| Action::CartTo { position_mm }),
+            Just(Action::Prompt {
+                message: String::new(),
+                fixture: None,
+                laser_mount_deg: None,
+                laser_fit_nm: Some(532)
+            }),
+            any_f64().prop_map(|seconds| Action::Wait { seconds }),
+        ]
+    }
+
+    proptest! {
+        #[test]
+        fn estimate_is_monotone_in_steps_and_never_negative(actions in prop::collection::vec(any_action(), 0..12)) {
+            let rig = lightstage();
+            let mut previous: Option<Estimate> = None;
+            for n in 0..=actions.len() {
+                let e = estimate(&plan(actions[..n].to_vec()), &rig);
+                prop_assert!(e.rig_time_s.is_finite() && e.rig_time_s >= 0.0);
+                let mut last = 0.0;
+                for &t in &e.step_end_s {
+                    prop_assert!(t.is_finite() && t >= last);
+                    last = t;
+                }
+                for u in e.per_device.values() {
+                    for v in [u.busy_s, u.travel, u.on_s] {
+                        prop_assert!(v.is_finite() && v >= 0.0);
+                    }
+                }
+                if let Some(p) = &previous {
+                    prop_assert!(e.rig_time_s >= p.rig_time_s);
+                    prop_assert!(e.raw_frames >= p.raw_frames && e.bytes >= p.bytes && e.captures >= p.captures);
+                    prop_assert_eq!(&e.step_end_s[..n - 1], &p.step_end_s[..]);
+                    for (id, u) in &e.per_device {
+                        let q = &p.per_device[id];
+                        prop_assert!(u.busy_s >= q.busy_s && u.travel >= q.travel && u.on_s >= q.on_s - 1e-9);
+                        prop_assert!(u.operations >= q.operations && u.frames >= q.frames);
+                    }
+                }
+                previous = Some(e);
+            }
+        }
+    }
+}

@@ -5,10 +5,13 @@
 //! devices of a [`rig`] and hands frames to [`storage`], which makes them durable before the
 //! step's journal row commits.
 
+pub mod cli;
+pub mod dry_run;
 pub mod estimate;
 pub mod executor;
 pub mod plan;
 pub mod rig;
 pub mod script;
+pub mod session;
 pub mod storage;
 pub mod validate;

@@ -113,7 +113,11 @@ impl Plan {
         self.steps
             .iter()
             .map(|s| match &s.action {
-                Action::Capture { exposures_s, cameras, .. } => exposures_s.len() * cameras.len(),
+                Action::Capture {
+                    exposures_s,
+                    cameras,
+                    ..
+                } => exposures_s.len() * cameras.len(),
                 _ => 0,
             })
             .sum()
@@ -124,7 +128,12 @@ impl Plan {
         self.steps
             .iter()
             .map(|s| match &s.action {
-                Action::Capture { exposures_s, cameras, hdr: true, .. } if exposures_s.len() > 1 => cameras.len(),
+                Action::Capture {
+                    exposures_s,
+                    cameras,
+                    hdr: true,
+                    ..
+                } if exposures_s.len() > 1 => cameras.len(),
                 _ => 0,
             })
             .sum()

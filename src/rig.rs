@@ -1,1 +1,243 @@
-//! (being written)
+//! A running rig: one actor handle per device, built from a rig description, plus the simulated
+//! World when the devices are simulated.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::sync::Arc;
+
+use stagehand_devices::axis::AxisHandle;
+use stagehand_devices::camera::CameraHandle;
+use stagehand_devices::cart::CartHandle;
+use stagehand_devices::clock::RigClock;
+use stagehand_devices::laser::LaserHandle;
+use stagehand_devices::rig::{
+    BUILTIN_LIGHTSTAGE, BUILTIN_REFLECTOMETER, Backend, RigError, RigSpec, load_rig_file, parse_rig,
+};
+use stagehand_devices::switch_bank::SwitchBankHandle;
+use stagehand_devices::trigger::TriggerHandle;
+use stagehand_devices::{DeviceError, DeviceResult};
+use stagehand_simulator::World;
+use stagehand_simulator::sim_devices::{
+    SimAxis, SimCamera, SimCart, SimLaser, SimSwitchBank, SimTrigger,
+};
+
+/// A rig description together with the text it was read from (stored in every run).
+#[derive(Debug, Clone)]
+pub struct RigSource {
+    pub spec: RigSpec,
+    pub text: String,
+    /// Where it came from: a path or `builtin:<name>`.
+    pub origin: String,
+}
+
+impl RigSource {
+    /// `None` or `lightstage` → the built-in simulated light stage; `reflectometer` → the built-in
+    /// reflectometer; anything else is a path to a rig TOML file.
+    pub fn load(arg: Option<&str>) -> Result<RigSource, RigError> {
+        let builtin = |name: &str, text: &str| -> Result<RigSource, RigError> {
+            let origin = format!("builtin:{name}");
+            Ok(RigSource {
+                spec: parse_rig(text, &origin)?,
+                text: text.to_string(),
+                origin,
+            })
+        };
+        match arg {
+            None | Some("lightstage") => builtin("lightstage", BUILTIN_LIGHTSTAGE),
+            Some("reflectometer") => builtin("reflectometer", BUILTIN_REFLECTOMETER),
+            Some(path) => {
+                let spec = load_rig_file(Path::new(path))?;
+                let text = std::fs::read_to_string(path).map_err(|e| RigError::Read {
+                    path: path.to_string(),
+                    reason: e.to_string(),
+                })?;
+                Ok(RigSource {
+                    spec,
+                    text,
+                    origin: path.to_string(),
+                })
+            }
+        }
+    }
+
+    /// Parses rig text given inline (e.g. the snapshot stored in a run's manifest).
+    pub fn from_text(text: &str, origin: &str) -> Result<RigSource, RigError> {
+        Ok(RigSource {
+            spec: parse_rig(text, origin)?,
+            text: text.to_string(),
+            origin: origin.to_string(),
+        })
+    }
+}
+
+/// Which lamp a switch-bank channel powers.
+#[derive(Debug, Clone)]
+pub struct LampWiring {
+    pub bank: String,
+    pub channel: u32,
+}
+
+/// Every device of a rig, each owned by its actor task.
+#[derive(Clone)]
+pub struct Rig {
+    pub spec: Arc<RigSpec>,
+    pub clock: RigClock,
+    pub axes: BTreeMap<String, AxisHandle>,
+    pub banks: BTreeMap<String, SwitchBankHandle>,
+    pub lamps: BTreeMap<String, LampWiring>,
+    pub cameras: BTreeMap<String, CameraHandle>,
+    pub trigger: Option<TriggerHandle>,
+    pub laser: Option<LaserHandle>,
+    pub cart: Option<CartHandle>,
+    /// The simulated world, when the rig is simulated.
+    pub world: Option<Arc<World>>,
+}
+
+/// Why a rig could not be opened.
+#[derive(Debug, thiserror::Error)]
+pub enum OpenError {
+    #[error(
+        "{device}: backend `{backend:?}` has no driver in this build yet; use backend = \"sim\" for this device"
+    )]
+    NoDriver { device: String, backend: Backend },
+    #[error("simulator: {0}")]
+    Simulator(String),
+}
+
+impl Rig {
+    /// Spawns every device's actor. Must run inside a tokio runtime. `seed` drives the
+    /// simulated sensor noise; `clock` continues a resumed run's rig time.
+    pub fn open(spec: RigSpec, clock: RigClock, seed: u64) -> Result<Rig, OpenError> {
+        let spec = Arc::new(spec);
+        let check = |id: &str, b: Backend| -> Result<(), OpenError> {
+            if b == Backend::Sim {
+                Ok(())
+            } else {
+                Err(OpenError::NoDriver {
+                    device: id.to_string(),
+                    backend: b,
+                })
+            }
+        };
+        for a in &spec.axes {
+            check(&a.id, a.backend)?;
+        }
+        for b in &spec.switch_banks {
+            check(&b.id, b.backend)?;
+        }
+        for c in &spec.cameras {
+            check(&c.id, c.backend)?;
+        }
+        if let Some(t) = &spec.trigger {
+            check(&t.id, t.backend)?;
+        }
+        if let Some(l) = &spec.laser {
+            check(&l.id, l.backend)?;
+        }
+        if let Some(c) = &spec.cart {
+            check(&c.id, c.backend)?;
+        }
+        let world = World::new(spec.clone(), clock, seed)
+            .map_err(|e| OpenError::Simulator(e.to_string()))?;
+        let axes = spec
+            .axes
+            .iter()
+            .map(|a| {
+                (
+                    a.id.clone(),
+                    AxisHandle::spawn(a.clone(), SimAxis::new(a.clone(), world.clone())),
+                )
+            })
+            .collect();
+        let banks = spec
+            .switch_banks
+            .iter()
+            .map(|b| {
+                (
+                    b.id.clone(),
+                    SwitchBankHandle::spawn(
+                        b.clone(),
+                        SimSwitchBank::new(b.clone(), world.clone()),
+                    ),
+                )
+            })
+            .collect();
+        let lamps = spec
+            .lamps
+            .iter()
+            .map(|l| {
+                (
+                    l.id.clone(),
+                    LampWiring {
+                        bank: l.bank.clone(),
+                        channel: l.channel,
+                    },
+                )
+            })
+            .collect();
+        let cameras = spec
+            .cameras
+            .iter()
+            .map(|c| {
+                (
+                    c.id.clone(),
+                    CameraHandle::spawn(c.clone(), SimCamera::new(c.clone(), world.clone())),
+                )
+            })
+            .collect();
+        let trigger = spec
+            .trigger
+            .as_ref()
+            .map(|t| TriggerHandle::spawn(t.clone(), SimTrigger::new(world.clone())));
+        let laser = spec
+            .laser
+            .as_ref()
+            .map(|l| LaserHandle::spawn(l.clone(), SimLaser::new(world.clone())));
+        let cart = spec
+            .cart
+            .as_ref()
+            .map(|c| CartHandle::spawn(c.clone(), SimCart::new(world.clone())));
+        Ok(Rig {
+            spec,
+            clock,
+            axes,
+            banks,
+            lamps,
+            cameras,
+            trigger,
+            laser,
+            cart,
+            world: Some(world),
+        })
+    }
+
+    /// True when every device is simulated (the run uses the virtual clock).
+    pub fn is_simulated(&self) -> bool {
+        self.world.is_some()
+    }
+
+    /// Safe state: laser off and disarmed, every switched output off, every axis stopped.
+    /// Tries every device even if one fails and reports the first failure.
+    pub async fn safe_state(&self) -> DeviceResult<()> {
+        let mut first: Option<DeviceError> = None;
+        let mut note = |r: DeviceResult<()>| {
+            if let Err(e) = r {
+                tracing::error!("safe state: {e}");
+                first.get_or_insert(e);
+            }
+        };
+        if let Some(l) = &self.laser {
+            note(l.disarm().await);
+        }
+        for b in self.banks.values() {
+            note(b.all_off().await);
+        }
+        for a in self.axes.values() {
+            note(a.stop().await.map(|_| ()));
+        }
+        match first {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+}

@@ -1,1 +1,289 @@
-//! (being written)
+//! Rotary axes: the capability a driver implements, and the actor handle the engine uses.
+//!
+//! The handle checks soft limits, takes up backlash by always making the final approach in the
+//! positive direction, and bounds every request with a timeout derived from the motion physics.
+
+use std::future::Future;
+use std::sync::Arc;
+
+use serde::Serialize;
+use tokio::sync::{mpsc, oneshot, watch};
+
+use crate::clock::duration_s;
+use crate::error::{DeviceError, DeviceResult};
+use crate::motion::{Trapezoid, move_duration_s};
+use crate::rig::AxisSpec;
+
+/// What a backend (simulated stepper, GRBL controller, ...) must do for one axis.
+pub trait AxisDriver: Send + 'static {
+    /// Drives to the home switch; afterwards the position reads 0°.
+    fn home(&mut self) -> impl Future<Output = DeviceResult<f64>> + Send;
+    /// Moves to an absolute angle and returns the position reached. Must be cancel-safe:
+    /// if the future is dropped, a following `stop` reports where the axis stopped.
+    fn move_to(&mut self, target_deg: f64) -> impl Future<Output = DeviceResult<f64>> + Send;
+    /// Stops any motion and returns the position.
+    fn stop(&mut self) -> impl Future<Output = DeviceResult<f64>> + Send;
+    /// Reads the current position.
+    fn position(&mut self) -> impl Future<Output = DeviceResult<f64>> + Send;
+}
+
+/// Last known state of an axis, published by its actor.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct AxisStatus {
+    pub position_deg: f64,
+    pub homed: bool,
+    pub moving: bool,
+}
+
+enum Cmd {
+    Home(oneshot::Sender<DeviceResult<f64>>),
+    MoveTo(f64, oneshot::Sender<DeviceResult<f64>>),
+    Position(oneshot::Sender<DeviceResult<f64>>),
+}
+
+/// Cheap-to-clone handle to the task that owns one axis.
+#[derive(Clone)]
+pub struct AxisHandle {
+    spec: Arc<AxisSpec>,
+    tx: mpsc::Sender<Cmd>,
+    stop_tx: mpsc::Sender<oneshot::Sender<DeviceResult<f64>>>,
+    status: watch::Receiver<AxisStatus>,
+}
+
+/// Extra time granted beyond the physics before a request is declared lost.
+const MARGIN_S: f64 = 2.0;
+
+impl AxisHandle {
+    /// Spawns the actor task that owns `driver` and returns its handle.
+    pub fn spawn<D: AxisDriver>(spec: AxisSpec, driver: D) -> Self {
+        let (tx, rx) = mpsc::channel(8);
+        let (stop_tx, stop_rx) = mpsc::channel(4);
+        let (status_tx, status) = watch::channel(AxisStatus {
+            position_deg: 0.0,
+            homed: false,
+            moving: false,
+        });
+        let spec = Arc::new(spec);
+        tokio::spawn(run_actor(spec.clone(), driver, rx, stop_rx, status_tx));
+        Self {
+            spec,
+            tx,
+            stop_tx,
+            status,
+        }
+    }
+
+    pub fn id(&self) -> &str {
+        &self.spec.id
+    }
+
+    pub fn spec(&self) -> &AxisSpec {
+        &self.spec
+    }
+
+    /// Latest published status (no round trip).
+    pub fn status(&self) -> AxisStatus {
+        *self.status.borrow()
+    }
+
+    /// A receiver that sees every status change (for live dashboards).
+    pub fn watch(&self) -> watch::Receiver<AxisStatus> {
+        self.status.clone()
+    }
+
+    /// Homes the axis.
+    pub async fn home(&self) -> DeviceResult<f64> {
+        let s = &self.spec;
+        let span = (s.max_deg - s.min_deg).abs();
+        let timeout = span / s.homing_speed_deg_s * 1.5 + s.settle_s + MARGIN_S;
+        self.request("home", timeout, Cmd::Home).await
+    }
+
+    /// Moves to `target_deg`, approaching from below to take up backlash.
+    pub async fn move_to(&self, target_deg: f64) -> DeviceResult<f64> {
+        let s = &self.spec;
+        if !target_deg.is_finite() || target_deg < s.min_deg || target_deg > s.max_deg {
+            return Err(DeviceError::OutsideSoftLimits {
+                device: s.id.clone(),
+                target_deg,
+                min_deg: s.min_deg,
+                max_deg: s.max_deg,
+            });
+        }
+        let status = self.status();
+        if !status.homed {
+            return Err(DeviceError::NotHomed {
+                device: s.id.clone(),
+            });
+        }
+        let timeout = move_duration_s(
+            status.position_deg,
+            target_deg,
+            s.kinematics(),
+            s.backlash_deg,
+        ) * 1.5
+            + s.settle_s
+            + MARGIN_S;
+        self.request("move", timeout, |tx| Cmd::MoveTo(target_deg, tx))
+            .await
+    }
+
+    /// Reads the position from the device.
+    pub async fn position(&self) -> DeviceResult<f64> {
+        self.request("position", MARGIN_S, Cmd::Position).await
+    }
+
+    /// Stops the axis now, interrupting a move in progress.
+    pub async fn stop(&self) -> DeviceResult<f64> {
+        let (tx, rx) = oneshot::channel();
+        let gone = || DeviceError::Gone {
+            device: self.spec.id.clone(),
+        };
+        self.stop_tx.send(tx).await.map_err(|_| gone())?;
+        match tokio::time::timeout(duration_s(MARGIN_S), rx).await {
+            Ok(Ok(r)) => r,
+            Ok(Err(_)) => Err(gone()),
+            Err(_) => Err(DeviceError::Timeout {
+                device: self.spec.id.clone(),
+                request: "stop".into(),
+                timeout_s: MARGIN_S,
+            }),
+        }
+    }
+
+    async fn request(
+        &self,
+        what: &str,
+        timeout_s: f64,
+        make: impl FnOnce(oneshot::Sender<DeviceResult<f64>>) -> Cmd,
+    ) -> DeviceResult<f64> {
+        let (tx, rx) = oneshot::channel();
+        let gone = || DeviceError::Gone {
+            device: self.spec.id.clone(),
+        };
+        self.tx.send(make(tx)).await.map_err(|_| gone())?;
+        match tokio::time::timeout(duration_s(timeout_s), rx).await {
+            Ok(Ok(r)) => r,
+            Ok(Err(_)) => Err(gone()),
+            Err(_) => Err(DeviceError::Timeout {
+                device: self.spec.id.clone(),
+                request: what.into(),
+                timeout_s,
+            }),
+        }
+    }
+}
+
+async fn run_actor<D: AxisDriver>(
+    spec: Arc<AxisSpec>,
+    mut driver: D,
+    mut rx: mpsc::Receiver<Cmd>,
+    mut stop_rx: mpsc::Receiver<oneshot::Sender<DeviceResult<f64>>>,
+    status: watch::Sender<AxisStatus>,
+) {
+    loop {
+        tokio::select! {
+            biased;
+            Some(reply) = stop_rx.recv() => {
+                let r = driver.stop().await;
+                publish(&status, &r, None, false);
+                let _ = reply.send(r);
+            }
+            cmd = rx.recv() => {
+                let Some(cmd) = cmd else { break };
+                match cmd {
+                    Cmd::Position(reply) => {
+                        let r = driver.position().await;
+                        publish(&status, &r, None, false);
+                        let _ = reply.send(r);
+                    }
+                    Cmd::Home(reply) => {
+                        status.send_modify(|s| s.moving = true);
+                        let r = tokio::select! {
+                            r = home_and_settle(&spec, &mut driver) => r,
+                            Some(stop_reply) = stop_rx.recv() => {
+                                let r = driver.stop().await;
+                                let _ = stop_reply.send(r.clone());
+                                status.send_modify(|s| s.homed = false);
+                                r.and(Err(DeviceError::Other { device: spec.id.clone(), message: "homing interrupted by stop; home the axis again".into() }))
+                            }
+                        };
+                        let homed = r.is_ok();
+                        publish(&status, &r, Some(homed), false);
+                        let _ = reply.send(r);
+                    }
+                    Cmd::MoveTo(target, reply) => {
+                        status.send_modify(|s| s.moving = true);
+                        let r = tokio::select! {
+                            r = approach(&spec, &mut driver, target, status.borrow().position_deg) => r,
+                            Some(stop_reply) = stop_rx.recv() => {
+                                let r = driver.stop().await;
+                                let _ = stop_reply.send(r.clone());
+                                r.and(Err(DeviceError::Other { device: spec.id.clone(), message: "move interrupted by stop".into() }))
+                            }
+                        };
+                        let homed = match &r { Err(DeviceError::HardLimit { .. }) => Some(false), _ => None };
+                        publish(&status, &r, homed, false);
+                        let _ = reply.send(r);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Homes, then waits the settling time.
+async fn home_and_settle<D: AxisDriver>(spec: &AxisSpec, driver: &mut D) -> DeviceResult<f64> {
+    let p = driver.home().await?;
+    tokio::time::sleep(duration_s(spec.settle_s)).await;
+    Ok(p)
+}
+
+/// Moves to `target`, making the final approach in the positive direction (a negative move
+/// overshoots by the backlash and comes back), then waits the settling time.
+async fn approach<D: AxisDriver>(
+    spec: &AxisSpec,
+    driver: &mut D,
+    target: f64,
+    from: f64,
+) -> DeviceResult<f64> {
+    if target == from {
+        return Ok(from);
+    }
+    if target < from && spec.backlash_deg > 0.0 {
+        driver.move_to(target - spec.backlash_deg).await?;
+    }
+    let p = driver.move_to(target).await?;
+    tokio::time::sleep(duration_s(spec.settle_s)).await;
+    Ok(p)
+}
+
+fn publish(
+    status: &watch::Sender<AxisStatus>,
+    r: &DeviceResult<f64>,
+    homed: Option<bool>,
+    moving: bool,
+) {
+    status.send_modify(|s| {
+        if let Ok(p) = r {
+            s.position_deg = *p;
+        }
+        if let Some(h) = homed {
+            s.homed = h;
+        }
+        s.moving = moving;
+    });
+}
+
+/// Time a move will take under this axis's physics, including backlash take-up and settling.
+pub fn planned_move_s(spec: &AxisSpec, from_deg: f64, to_deg: f64) -> f64 {
+    if from_deg == to_deg {
+        return 0.0;
+    }
+    move_duration_s(from_deg, to_deg, spec.kinematics(), spec.backlash_deg) + spec.settle_s
+}
+
+/// The trapezoid of a single leg (no backlash) — used by simulated drivers.
+pub fn leg(spec: &AxisSpec, from_deg: f64, to_deg: f64) -> Trapezoid {
+    Trapezoid::plan(from_deg, to_deg, spec.kinematics())
+}

@@ -1,1 +1,177 @@
-//! (being written)
+//! Cameras: exposure, gain, arming, and exact trigger accounting — one frame per trigger id.
+
+use std::future::Future;
+use std::sync::Arc;
+
+use tokio::sync::{mpsc, oneshot};
+
+use crate::clock::duration_s;
+use crate::error::{DeviceError, DeviceResult};
+use crate::frame::Frame;
+use crate::rig::CameraSpec;
+
+/// What a backend (simulated camera, V4L2, GenICam, gphoto2) must do.
+pub trait CameraDriver: Send + 'static {
+    /// Sets exposure time and analogue gain for the following triggers.
+    fn configure(
+        &mut self,
+        exposure_s: f64,
+        gain: f64,
+    ) -> impl Future<Output = DeviceResult<()>> + Send;
+    /// Starts listening to the trigger.
+    fn arm(&mut self) -> impl Future<Output = DeviceResult<()>> + Send;
+    /// Stops listening to the trigger and drops frames not yet collected.
+    fn disarm(&mut self) -> impl Future<Output = DeviceResult<()>> + Send;
+    /// Waits for the next frame the camera delivers.
+    fn next_frame(&mut self) -> impl Future<Output = DeviceResult<Frame>> + Send;
+}
+
+enum Cmd {
+    Configure(f64, f64, oneshot::Sender<DeviceResult<()>>),
+    Arm(bool, oneshot::Sender<DeviceResult<()>>),
+    FrameFor(u64, f64, oneshot::Sender<DeviceResult<Frame>>),
+}
+
+/// Cheap-to-clone handle to the task that owns one camera.
+#[derive(Clone)]
+pub struct CameraHandle {
+    spec: Arc<CameraSpec>,
+    tx: mpsc::Sender<Cmd>,
+}
+
+/// Slack beyond exposure + readout before a frame is declared missing.
+const MARGIN_S: f64 = 2.0;
+
+impl CameraHandle {
+    /// Spawns the actor task that owns `driver`.
+    pub fn spawn<D: CameraDriver>(spec: CameraSpec, driver: D) -> Self {
+        let (tx, rx) = mpsc::channel(8);
+        let spec = Arc::new(spec);
+        tokio::spawn(run_actor(spec.clone(), driver, rx));
+        Self { spec, tx }
+    }
+
+    pub fn id(&self) -> &str {
+        &self.spec.id
+    }
+
+    pub fn spec(&self) -> &CameraSpec {
+        &self.spec
+    }
+
+    /// Sets exposure and gain, checking them against the camera's ranges.
+    pub async fn configure(&self, exposure_s: f64, gain: f64) -> DeviceResult<()> {
+        let s = &self.spec;
+        if !(exposure_s.is_finite()
+            && exposure_s >= s.min_exposure_s
+            && exposure_s <= s.max_exposure_s)
+        {
+            return Err(DeviceError::Exposure {
+                device: s.id.clone(),
+                exposure_s,
+                min_s: s.min_exposure_s,
+                max_s: s.max_exposure_s,
+            });
+        }
+        if !(gain.is_finite() && (1.0..=s.max_gain).contains(&gain)) {
+            return Err(DeviceError::Gain {
+                device: s.id.clone(),
+                gain,
+                max: s.max_gain,
+            });
+        }
+        let (tx, rx) = oneshot::channel();
+        self.send(
+            Cmd::Configure(exposure_s, gain, tx),
+            rx,
+            "configure",
+            MARGIN_S,
+        )
+        .await
+    }
+
+    /// Arms (true) or disarms (false) the camera.
+    pub async fn set_armed(&self, armed: bool) -> DeviceResult<()> {
+        let (tx, rx) = oneshot::channel();
+        self.send(
+            Cmd::Arm(armed, tx),
+            rx,
+            if armed { "arm" } else { "disarm" },
+            MARGIN_S,
+        )
+        .await
+    }
+
+    /// Collects the frame for `trigger_id`. Waits at most exposure + readout + margin; a
+    /// frame of another trigger is an error, never silently accepted.
+    pub async fn frame_for(&self, trigger_id: u64, exposure_s: f64) -> DeviceResult<Frame> {
+        let wait_s = exposure_s + self.spec.readout_s() + MARGIN_S;
+        let (tx, rx) = oneshot::channel();
+        self.send(
+            Cmd::FrameFor(trigger_id, wait_s, tx),
+            rx,
+            "frame",
+            wait_s + MARGIN_S,
+        )
+        .await
+    }
+
+    async fn send<T>(
+        &self,
+        cmd: Cmd,
+        rx: oneshot::Receiver<DeviceResult<T>>,
+        what: &str,
+        timeout_s: f64,
+    ) -> DeviceResult<T> {
+        let gone = || DeviceError::Gone {
+            device: self.spec.id.clone(),
+        };
+        self.tx.send(cmd).await.map_err(|_| gone())?;
+        match tokio::time::timeout(duration_s(timeout_s), rx).await {
+            Ok(Ok(r)) => r,
+            Ok(Err(_)) => Err(gone()),
+            Err(_) => Err(DeviceError::Timeout {
+                device: self.spec.id.clone(),
+                request: what.into(),
+                timeout_s,
+            }),
+        }
+    }
+}
+
+async fn run_actor<D: CameraDriver>(
+    spec: Arc<CameraSpec>,
+    mut driver: D,
+    mut rx: mpsc::Receiver<Cmd>,
+) {
+    while let Some(cmd) = rx.recv().await {
+        match cmd {
+            Cmd::Configure(e, g, reply) => {
+                let _ = reply.send(driver.configure(e, g).await);
+            }
+            Cmd::Arm(true, reply) => {
+                let _ = reply.send(driver.arm().await);
+            }
+            Cmd::Arm(false, reply) => {
+                let _ = reply.send(driver.disarm().await);
+            }
+            Cmd::FrameFor(id, wait_s, reply) => {
+                let r = match tokio::time::timeout(duration_s(wait_s), driver.next_frame()).await {
+                    Err(_) => Err(DeviceError::MissingFrame {
+                        device: spec.id.clone(),
+                        trigger_id: id,
+                        timeout_s: wait_s,
+                    }),
+                    Ok(Err(e)) => Err(e),
+                    Ok(Ok(frame)) if frame.trigger_id != id => Err(DeviceError::UnexpectedFrame {
+                        device: spec.id.clone(),
+                        expected: id,
+                        got: frame.trigger_id,
+                    }),
+                    Ok(Ok(frame)) => Ok(frame),
+                };
+                let _ = reply.send(r);
+            }
+        }
+    }
+}

@@ -18,7 +18,10 @@ pub struct RigClock {
 impl RigClock {
     /// A clock reading `offset_s` now (a resumed run continues its rig time).
     pub fn starting_at(offset_s: f64) -> Self {
-        Self { start: Instant::now(), offset_s }
+        Self {
+            start: Instant::now(),
+            offset_s,
+        }
     }
 
     /// Seconds of rig time.

@@ -30,7 +30,11 @@ pub struct Frame {
 impl Frame {
     /// Largest digital number the sensor can produce.
     pub fn max_value(&self) -> u16 {
-        if self.bit_depth >= 16 { u16::MAX } else { ((1u32 << self.bit_depth) - 1) as u16 }
+        if self.bit_depth >= 16 {
+            u16::MAX
+        } else {
+            ((1u32 << self.bit_depth) - 1) as u16
+        }
     }
 
     /// Number of samples at the sensor's maximum value (clipped).

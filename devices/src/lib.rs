@@ -15,5 +15,5 @@ pub mod rig;
 pub mod switch_bank;
 pub mod trigger;
 
-pub use error::DeviceError;
+pub use error::{DeviceError, DeviceResult};
 pub use frame::Frame;

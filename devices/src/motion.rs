@@ -40,7 +40,14 @@ impl Trapezoid {
             let peak = (distance * a).sqrt();
             (peak, peak / a, 0.0)
         };
-        Self { from_deg, to_deg, peak_deg_s: peak, accel_deg_s2: a, ramp_s, cruise_s }
+        Self {
+            from_deg,
+            to_deg,
+            peak_deg_s: peak,
+            accel_deg_s2: a,
+            ramp_s,
+            cruise_s,
+        }
     }
 
     /// Total duration of the move in seconds.
@@ -50,7 +57,11 @@ impl Trapezoid {
 
     /// Position `t` seconds after the move began (clamped to the move).
     pub fn position_at(&self, t: f64) -> f64 {
-        let dir = if self.to_deg >= self.from_deg { 1.0 } else { -1.0 };
+        let dir = if self.to_deg >= self.from_deg {
+            1.0
+        } else {
+            -1.0
+        };
         let t = t.clamp(0.0, self.duration_s());
         let a = self.accel_deg_s2;
         let travelled = if t < self.ramp_s {
@@ -75,7 +86,8 @@ impl Trapezoid {
 pub fn move_duration_s(from_deg: f64, to_deg: f64, k: Kinematics, backlash_deg: f64) -> f64 {
     if to_deg < from_deg && backlash_deg > 0.0 {
         let past = to_deg - backlash_deg;
-        Trapezoid::plan(from_deg, past, k).duration_s() + Trapezoid::plan(past, to_deg, k).duration_s()
+        Trapezoid::plan(from_deg, past, k).duration_s()
+            + Trapezoid::plan(past, to_deg, k).duration_s()
     } else {
         Trapezoid::plan(from_deg, to_deg, k).duration_s()
     }
@@ -86,7 +98,10 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
-    const K: Kinematics = Kinematics { speed_deg_s: 30.0, accel_deg_s2: 60.0 };
+    const K: Kinematics = Kinematics {
+        speed_deg_s: 30.0,
+        accel_deg_s2: 60.0,
+    };
 
     #[test]
     fn long_move_cruises() {

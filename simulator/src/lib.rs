@@ -2,4 +2,8 @@
 //! simulated devices that change it, and a renderer that turns it into camera frames.
 
 pub mod render;
+pub mod sim_devices;
+pub mod world;
 pub mod world_state;
+
+pub use world::World;

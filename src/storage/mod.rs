@@ -1,1 +1,42 @@
-//! (being written)
+//! Crash-safe run datasets: one directory per run with its manifest, plan, script, rig file,
+//! frames (16-bit PNG raw, OpenEXR HDR) and a SQLite index that doubles as the step journal.
+//!
+//! A step is done when its frames are durable (DESIGN.md invariant 4): [`RunStore::commit_step`]
+//! writes and fsyncs every frame file before the one transaction that indexes the frames and
+//! marks the step done. See [`run_store`] for the full contract and [`layout`] for the files.
+//!
+//! | file | concept |
+//! |---|---|
+//! | [`layout`] | run directory naming and the paths inside a run |
+//! | [`manifest`] | the run manifest |
+//! | [`frame_meta`] | per-frame metadata and frame file names |
+//! | [`atomic`] | temp → fsync → rename → fsync dir |
+//! | [`checksum`] | SHA-256 of frame files |
+//! | [`png16`] | 16-bit RGB PNG with iTXt metadata |
+//! | [`exr_hdr`] | OpenEXR f32 RGB, ZIP |
+//! | [`hdr_merge`] | Debevec-style bracket merge |
+//! | [`index`] | SQLite schema and queries |
+//! | [`run_store`] | the writer of a run |
+//! | [`error`] | typed errors |
+
+pub mod atomic;
+pub mod checksum;
+pub mod error;
+pub mod exr_hdr;
+pub mod frame_meta;
+pub mod hdr_merge;
+pub mod index;
+pub mod layout;
+pub mod manifest;
+pub mod png16;
+pub mod run_store;
+
+#[cfg(test)]
+mod tests;
+
+pub use error::StorageError;
+pub use frame_meta::{FrameKind, FrameMeta, FramePixels, FrameToWrite, frame_file_name};
+pub use hdr_merge::{HdrImage, merge_bracket};
+pub use index::{RunStatus, StepRecord, StoredFrame};
+pub use manifest::Manifest;
+pub use run_store::RunStore;

@@ -14,13 +14,20 @@ pub enum RigError {
     #[error("{path}: cannot read the rig file: {reason}; check the --rig path")]
     Read { path: String, reason: String },
     #[error("{path}:{line}:{col}: {message}")]
-    Invalid { path: String, line: usize, col: usize, message: String },
+    Invalid {
+        path: String,
+        line: usize,
+        col: usize,
+        message: String,
+    },
 }
 
 /// Reads and checks a rig file from disk.
 pub fn load_rig_file(path: &Path) -> Result<RigSpec, RigError> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| RigError::Read { path: path.display().to_string(), reason: e.to_string() })?;
+    let text = std::fs::read_to_string(path).map_err(|e| RigError::Read {
+        path: path.display().to_string(),
+        reason: e.to_string(),
+    })?;
     parse_rig(&text, &path.display().to_string())
 }
 
@@ -30,12 +37,22 @@ pub fn parse_rig(text: &str, origin: &str) -> Result<RigSpec, RigError> {
         let offset = e.span().map(|s| s.start).unwrap_or(0);
         let (line, col) = line_col(text, offset);
         let message = e.message().trim().replace('\n', " ");
-        RigError::Invalid { path: origin.to_string(), line, col, message }
+        RigError::Invalid {
+            path: origin.to_string(),
+            line,
+            col,
+            message,
+        }
     })?;
     check(&spec).map_err(|(path, message)| {
         let offset = locate(text, &path).unwrap_or(0);
         let (line, col) = line_col(text, offset);
-        RigError::Invalid { path: origin.to_string(), line, col, message }
+        RigError::Invalid {
+            path: origin.to_string(),
+            line,
+            col,
+            message,
+        }
     })?;
     Ok(spec)
 }
@@ -62,127 +79,316 @@ fn check(spec: &RigSpec) -> Result<(), Problem> {
     let mut ids: Vec<(&str, Vec<Seg>)> = Vec::new();
     for (i, a) in spec.axes.iter().enumerate() {
         ids.push((&a.id, at("axis", i, "id")));
-        for (key, v) in [("speed_deg_s", a.speed_deg_s), ("accel_deg_s2", a.accel_deg_s2), ("homing_speed_deg_s", a.homing_speed_deg_s), ("steps_per_deg", a.steps_per_deg)] {
+        for (key, v) in [
+            ("speed_deg_s", a.speed_deg_s),
+            ("accel_deg_s2", a.accel_deg_s2),
+            ("homing_speed_deg_s", a.homing_speed_deg_s),
+            ("steps_per_deg", a.steps_per_deg),
+        ] {
             if !positive(v) {
-                return Err((at("axis", i, key), format!("axis `{}`: {key} must be a positive number, got {v}", a.id)));
+                return Err((
+                    at("axis", i, key),
+                    format!("axis `{}`: {key} must be a positive number, got {v}", a.id),
+                ));
             }
         }
         if !(a.min_deg.is_finite() && a.max_deg.is_finite() && a.min_deg < a.max_deg) {
-            return Err((at("axis", i, "max_deg"), format!("axis `{}`: soft limits need min_deg < max_deg, got [{}, {}]", a.id, a.min_deg, a.max_deg)));
+            return Err((
+                at("axis", i, "max_deg"),
+                format!(
+                    "axis `{}`: soft limits need min_deg < max_deg, got [{}, {}]",
+                    a.id, a.min_deg, a.max_deg
+                ),
+            ));
         }
         if !(a.min_deg..=a.max_deg).contains(&0.0) {
-            return Err((at("axis", i, "min_deg"), format!("axis `{}`: the home position 0° must lie inside the soft limits [{}, {}]", a.id, a.min_deg, a.max_deg)));
+            return Err((
+                at("axis", i, "min_deg"),
+                format!(
+                    "axis `{}`: the home position 0° must lie inside the soft limits [{}, {}]",
+                    a.id, a.min_deg, a.max_deg
+                ),
+            ));
         }
         for (key, v) in [("backlash_deg", a.backlash_deg), ("settle_s", a.settle_s)] {
             if !(v.is_finite() && (0.0..=10.0).contains(&v)) {
-                return Err((at("axis", i, key), format!("axis `{}`: {key} must be between 0 and 10, got {v}", a.id)));
+                return Err((
+                    at("axis", i, key),
+                    format!("axis `{}`: {key} must be between 0 and 10, got {v}", a.id),
+                ));
             }
         }
     }
     for (i, b) in spec.switch_banks.iter().enumerate() {
         ids.push((&b.id, at("switch_bank", i, "id")));
         if b.channels == 0 || b.channels > 64 {
-            return Err((at("switch_bank", i, "channels"), format!("switch bank `{}`: channels must be between 1 and 64, got {}", b.id, b.channels)));
+            return Err((
+                at("switch_bank", i, "channels"),
+                format!(
+                    "switch bank `{}`: channels must be between 1 and 64, got {}",
+                    b.id, b.channels
+                ),
+            ));
         }
     }
     for (i, l) in spec.lamps.iter().enumerate() {
         ids.push((&l.id, at("lamp", i, "id")));
         let Some(bank) = spec.bank(&l.bank) else {
-            return Err((at("lamp", i, "bank"), format!("lamp `{}`: no switch bank `{}`; define a [[switch_bank]] with that id", l.id, l.bank)));
+            return Err((
+                at("lamp", i, "bank"),
+                format!(
+                    "lamp `{}`: no switch bank `{}`; define a [[switch_bank]] with that id",
+                    l.id, l.bank
+                ),
+            ));
         };
         if l.channel == 0 || l.channel > bank.channels {
-            return Err((at("lamp", i, "channel"), format!("lamp `{}`: channel {} does not exist on bank `{}` (channels 1..={})", l.id, l.channel, bank.id, bank.channels)));
+            return Err((
+                at("lamp", i, "channel"),
+                format!(
+                    "lamp `{}`: channel {} does not exist on bank `{}` (channels 1..={})",
+                    l.id, l.channel, bank.id, bank.channels
+                ),
+            ));
         }
-        if spec.lamps[..i].iter().any(|o| o.bank == l.bank && o.channel == l.channel) {
-            return Err((at("lamp", i, "channel"), format!("lamp `{}`: channel {} of `{}` already powers another lamp", l.id, l.channel, l.bank)));
+        if spec.lamps[..i]
+            .iter()
+            .any(|o| o.bank == l.bank && o.channel == l.channel)
+        {
+            return Err((
+                at("lamp", i, "channel"),
+                format!(
+                    "lamp `{}`: channel {} of `{}` already powers another lamp",
+                    l.id, l.channel, l.bank
+                ),
+            ));
         }
-        if l.kind == LampKind::Halogen && !(l.elevation_deg.is_finite() && (0.0..=90.0).contains(&l.elevation_deg)) {
-            return Err((at("lamp", i, "elevation_deg"), format!("lamp `{}`: elevation_deg must be between 0 and 90, got {}", l.id, l.elevation_deg)));
+        if l.kind == LampKind::Halogen
+            && !(l.elevation_deg.is_finite() && (0.0..=90.0).contains(&l.elevation_deg))
+        {
+            return Err((
+                at("lamp", i, "elevation_deg"),
+                format!(
+                    "lamp `{}`: elevation_deg must be between 0 and 90, got {}",
+                    l.id, l.elevation_deg
+                ),
+            ));
         }
         if !positive(l.distance_mm) || !positive(l.power) {
-            return Err((at("lamp", i, "distance_mm"), format!("lamp `{}`: distance_mm and power must be positive", l.id)));
+            return Err((
+                at("lamp", i, "distance_mm"),
+                format!("lamp `{}`: distance_mm and power must be positive", l.id),
+            ));
         }
         if !(l.warmup_s.is_finite() && (0.0..=600.0).contains(&l.warmup_s)) {
-            return Err((at("lamp", i, "warmup_s"), format!("lamp `{}`: warmup_s must be between 0 and 600 s, got {}", l.id, l.warmup_s)));
+            return Err((
+                at("lamp", i, "warmup_s"),
+                format!(
+                    "lamp `{}`: warmup_s must be between 0 and 600 s, got {}",
+                    l.id, l.warmup_s
+                ),
+            ));
         }
     }
     for (i, c) in spec.cameras.iter().enumerate() {
         ids.push((&c.id, at("camera", i, "id")));
         if c.width == 0 || c.height == 0 || c.width > 16384 || c.height > 16384 {
-            return Err((at("camera", i, "width"), format!("camera `{}`: width and height must be between 1 and 16384, got {}×{}", c.id, c.width, c.height)));
+            return Err((
+                at("camera", i, "width"),
+                format!(
+                    "camera `{}`: width and height must be between 1 and 16384, got {}×{}",
+                    c.id, c.width, c.height
+                ),
+            ));
         }
         if !(positive(c.fps) && c.fps <= 1000.0) {
-            return Err((at("camera", i, "fps"), format!("camera `{}`: fps must be in (0, 1000], got {}", c.id, c.fps)));
+            return Err((
+                at("camera", i, "fps"),
+                format!("camera `{}`: fps must be in (0, 1000], got {}", c.id, c.fps),
+            ));
         }
         if ![8, 10, 12, 14, 16].contains(&c.bit_depth) {
-            return Err((at("camera", i, "bit_depth"), format!("camera `{}`: bit_depth must be 8, 10, 12, 14 or 16, got {}", c.id, c.bit_depth)));
+            return Err((
+                at("camera", i, "bit_depth"),
+                format!(
+                    "camera `{}`: bit_depth must be 8, 10, 12, 14 or 16, got {}",
+                    c.id, c.bit_depth
+                ),
+            ));
         }
         if !(positive(c.fov_deg) && c.fov_deg < 170.0) {
-            return Err((at("camera", i, "fov_deg"), format!("camera `{}`: fov_deg must be in (0, 170), got {}", c.id, c.fov_deg)));
+            return Err((
+                at("camera", i, "fov_deg"),
+                format!(
+                    "camera `{}`: fov_deg must be in (0, 170), got {}",
+                    c.id, c.fov_deg
+                ),
+            ));
         }
         if !(c.elevation_deg.is_finite() && (0.0..=90.0).contains(&c.elevation_deg)) {
-            return Err((at("camera", i, "elevation_deg"), format!("camera `{}`: elevation_deg must be between 0 and 90, got {}", c.id, c.elevation_deg)));
+            return Err((
+                at("camera", i, "elevation_deg"),
+                format!(
+                    "camera `{}`: elevation_deg must be between 0 and 90, got {}",
+                    c.id, c.elevation_deg
+                ),
+            ));
         }
         if !positive(c.distance_mm) || !c.azimuth_deg.is_finite() {
-            return Err((at("camera", i, "distance_mm"), format!("camera `{}`: distance_mm must be positive and azimuth_deg finite", c.id)));
+            return Err((
+                at("camera", i, "distance_mm"),
+                format!(
+                    "camera `{}`: distance_mm must be positive and azimuth_deg finite",
+                    c.id
+                ),
+            ));
         }
-        if !(positive(c.min_exposure_s) && c.min_exposure_s < c.max_exposure_s && c.max_exposure_s <= 3600.0) {
-            return Err((at("camera", i, "max_exposure_s"), format!("camera `{}`: need 0 < min_exposure_s < max_exposure_s <= 3600", c.id)));
+        if !(positive(c.min_exposure_s)
+            && c.min_exposure_s < c.max_exposure_s
+            && c.max_exposure_s <= 3600.0)
+        {
+            return Err((
+                at("camera", i, "max_exposure_s"),
+                format!(
+                    "camera `{}`: need 0 < min_exposure_s < max_exposure_s <= 3600",
+                    c.id
+                ),
+            ));
         }
         if !(c.max_gain.is_finite() && c.max_gain >= 1.0) {
-            return Err((at("camera", i, "max_gain"), format!("camera `{}`: max_gain must be at least 1", c.id)));
+            return Err((
+                at("camera", i, "max_gain"),
+                format!("camera `{}`: max_gain must be at least 1", c.id),
+            ));
         }
     }
     if let Some(t) = &spec.trigger {
         ids.push((&t.id, vec![Seg::Key("trigger"), Seg::Key("id")]));
     } else if !spec.cameras.is_empty() {
-        return Err((vec![Seg::Key("camera")], "cameras need a [trigger] table to fire them".into()));
+        return Err((
+            vec![Seg::Key("camera")],
+            "cameras need a [trigger] table to fire them".into(),
+        ));
     }
     if let Some(l) = &spec.laser {
         ids.push((&l.id, vec![Seg::Key("laser"), Seg::Key("id")]));
         let key = |k| vec![Seg::Key("laser"), Seg::Key(k)];
         if l.colours_nm.is_empty() || l.colours_nm.iter().any(|&c| !(380..=1100).contains(&c)) {
-            return Err((key("colours_nm"), "laser: colours_nm must list wavelengths between 380 and 1100 nm".into()));
+            return Err((
+                key("colours_nm"),
+                "laser: colours_nm must list wavelengths between 380 and 1100 nm".into(),
+            ));
         }
         if !l.colours_nm.contains(&l.fitted_nm) {
-            return Err((key("fitted_nm"), format!("laser: fitted_nm {} is not one of colours_nm {:?}", l.fitted_nm, l.colours_nm)));
+            return Err((
+                key("fitted_nm"),
+                format!(
+                    "laser: fitted_nm {} is not one of colours_nm {:?}",
+                    l.fitted_nm, l.colours_nm
+                ),
+            ));
         }
         match spec.axis(&l.tilt_axis) {
             Some(a) if a.role == super::spec::AxisRole::LaserTilt => {}
-            Some(_) => return Err((key("tilt_axis"), format!("laser: axis `{}` must have role = \"laser_tilt\"", l.tilt_axis))),
-            None => return Err((key("tilt_axis"), format!("laser: no axis `{}`; define an [[axis]] with role = \"laser_tilt\"", l.tilt_axis))),
+            Some(_) => {
+                return Err((
+                    key("tilt_axis"),
+                    format!(
+                        "laser: axis `{}` must have role = \"laser_tilt\"",
+                        l.tilt_axis
+                    ),
+                ));
+            }
+            None => {
+                return Err((
+                    key("tilt_axis"),
+                    format!(
+                        "laser: no axis `{}`; define an [[axis]] with role = \"laser_tilt\"",
+                        l.tilt_axis
+                    ),
+                ));
+            }
         }
         if !(positive(l.distance_mm) && positive(l.power_mw) && positive(l.sheet_half_width_mm)) {
-            return Err((key("power_mw"), "laser: distance_mm, power_mw and sheet_half_width_mm must be positive".into()));
+            return Err((
+                key("power_mw"),
+                "laser: distance_mm, power_mw and sheet_half_width_mm must be positive".into(),
+            ));
         }
         if !(l.mount_elevation_deg.is_finite() && (0.0..=90.0).contains(&l.mount_elevation_deg)) {
-            return Err((key("mount_elevation_deg"), "laser: mount_elevation_deg must be between 0 and 90".into()));
+            return Err((
+                key("mount_elevation_deg"),
+                "laser: mount_elevation_deg must be between 0 and 90".into(),
+            ));
         }
     }
     if let Some(c) = &spec.cart {
         ids.push((&c.id, vec![Seg::Key("cart"), Seg::Key("id")]));
         if !(positive(c.speed_mm_s) && positive(c.travel_mm)) {
-            return Err((vec![Seg::Key("cart"), Seg::Key("speed_mm_s")], "cart: speed_mm_s and travel_mm must be positive".into()));
+            return Err((
+                vec![Seg::Key("cart"), Seg::Key("speed_mm_s")],
+                "cart: speed_mm_s and travel_mm must be positive".into(),
+            ));
         }
     }
-    if !["flat", "bumps", "steps", "weave", "checkerboard", "colorchecker", "planes"].contains(&spec.sim.sample.as_str()) {
-        return Err((vec![Seg::Key("sim"), Seg::Key("sample")], format!("sim.sample `{}` is unknown; use flat, bumps, steps, weave, checkerboard, colorchecker or planes", spec.sim.sample)));
+    if ![
+        "flat",
+        "bumps",
+        "steps",
+        "weave",
+        "checkerboard",
+        "colorchecker",
+        "planes",
+    ]
+    .contains(&spec.sim.sample.as_str())
+    {
+        return Err((
+            vec![Seg::Key("sim"), Seg::Key("sample")],
+            format!(
+                "sim.sample `{}` is unknown; use flat, bumps, steps, weave, checkerboard, colorchecker or planes",
+                spec.sim.sample
+            ),
+        ));
     }
     if !["preview", "standard", "reference"].contains(&spec.sim.quality.as_str()) {
-        return Err((vec![Seg::Key("sim"), Seg::Key("quality")], format!("sim.quality `{}` is unknown; use preview, standard or reference", spec.sim.quality)));
+        return Err((
+            vec![Seg::Key("sim"), Seg::Key("quality")],
+            format!(
+                "sim.quality `{}` is unknown; use preview, standard or reference",
+                spec.sim.quality
+            ),
+        ));
     }
     if !positive(spec.sim.sample_size_mm) {
-        return Err((vec![Seg::Key("sim"), Seg::Key("sample_size_mm")], "sim.sample_size_mm must be positive".into()));
+        return Err((
+            vec![Seg::Key("sim"), Seg::Key("sample_size_mm")],
+            "sim.sample_size_mm must be positive".into(),
+        ));
     }
     for (i, (id, path)) in ids.iter().enumerate() {
-        if id.is_empty() || !id.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-') {
-            return Err((path.clone(), format!("device id `{id}` must be non-empty ASCII letters, digits, `_` or `-`")));
+        if id.is_empty()
+            || !id
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+        {
+            return Err((
+                path.clone(),
+                format!("device id `{id}` must be non-empty ASCII letters, digits, `_` or `-`"),
+            ));
         }
         if ids[..i].iter().any(|(other, _)| other == id) {
-            return Err((path.clone(), format!("device id `{id}` is used twice; every device needs its own id")));
+            return Err((
+                path.clone(),
+                format!("device id `{id}` is used twice; every device needs its own id"),
+            ));
         }
     }
-    let uses_hardware = spec.axes.iter().map(|a| a.backend).chain(spec.cameras.iter().map(|c| c.backend)).any(|b| b != Backend::Sim);
+    let uses_hardware = spec
+        .axes
+        .iter()
+        .map(|a| a.backend)
+        .chain(spec.cameras.iter().map(|c| c.backend))
+        .any(|b| b != Backend::Sim);
     if uses_hardware {
         tracing::debug!("rig `{}` names hardware backends", spec.rig.name);
     }
@@ -197,8 +403,13 @@ fn locate(text: &str, path: &[Seg]) -> Option<usize> {
     let mut current: Option<&DeValue> = None;
     for seg in path {
         let next = match (seg, current) {
-            (Seg::Key(k), None) => table.iter().find(|(key, _)| key.get_ref() == k).map(|(_, v)| v),
-            (Seg::Key(k), Some(DeValue::Table(t))) => t.iter().find(|(key, _)| key.get_ref() == k).map(|(_, v)| v),
+            (Seg::Key(k), None) => table
+                .iter()
+                .find(|(key, _)| key.get_ref() == k)
+                .map(|(_, v)| v),
+            (Seg::Key(k), Some(DeValue::Table(t))) => {
+                t.iter().find(|(key, _)| key.get_ref() == k).map(|(_, v)| v)
+            }
             (Seg::Index(i), Some(DeValue::Array(a))) => a.get(*i),
             _ => None,
         };
@@ -217,7 +428,12 @@ pub(crate) fn line_col(text: &str, offset: usize) -> (usize, usize) {
     let offset = offset.min(text.len());
     let before = &text[..offset];
     let line = before.matches('\n').count() + 1;
-    let col = before.rsplit('\n').next().map(|l| l.chars().count()).unwrap_or(0) + 1;
+    let col = before
+        .rsplit('\n')
+        .next()
+        .map(|l| l.chars().count())
+        .unwrap_or(0)
+        + 1;
     (line, col)
 }
 
@@ -230,7 +446,13 @@ mod tests {
     fn builtin_rigs_parse() {
         let ls = parse_rig(BUILTIN_LIGHTSTAGE, "lightstage.toml").unwrap();
         assert_eq!(ls.cameras.len(), 8);
-        assert_eq!(ls.lamps.iter().filter(|l| l.kind == LampKind::Halogen).count(), 8);
+        assert_eq!(
+            ls.lamps
+                .iter()
+                .filter(|l| l.kind == LampKind::Halogen)
+                .count(),
+            8
+        );
         assert!(ls.laser.is_some());
         let rf = parse_rig(BUILTIN_REFLECTOMETER, "reflectometer.toml").unwrap();
         assert_eq!(rf.cameras.len(), 1);
@@ -239,14 +461,17 @@ mod tests {
 
     fn err(text: &str) -> (usize, usize, String) {
         match parse_rig(text, "x.toml") {
-            Err(RigError::Invalid { line, col, message, .. }) => (line, col, message),
+            Err(RigError::Invalid {
+                line, col, message, ..
+            }) => (line, col, message),
             other => panic!("expected an error, got {other:?}"),
         }
     }
 
     #[test]
     fn unknown_key_is_reported_at_its_line() {
-        let text = BUILTIN_LIGHTSTAGE.replacen("speed_deg_s = 30.0", "speed_deg_s = 30.0\nspeeed = 3", 1);
+        let text =
+            BUILTIN_LIGHTSTAGE.replacen("speed_deg_s = 30.0", "speed_deg_s = 30.0\nspeeed = 3", 1);
         let line = text.lines().position(|l| l.starts_with("speeed")).unwrap() + 1;
         let (l, c, m) = err(&text);
         assert_eq!((l, c), (line, 1));

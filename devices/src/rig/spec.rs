@@ -101,7 +101,10 @@ fn default_steps_per_deg() -> f64 {
 impl AxisSpec {
     /// Cruise speed and acceleration.
     pub fn kinematics(&self) -> Kinematics {
-        Kinematics { speed_deg_s: self.speed_deg_s, accel_deg_s2: self.accel_deg_s2 }
+        Kinematics {
+            speed_deg_s: self.speed_deg_s,
+            accel_deg_s2: self.accel_deg_s2,
+        }
     }
 }
 
@@ -283,7 +286,11 @@ fn default_quality() -> String {
 
 impl Default for SimSpec {
     fn default() -> Self {
-        Self { sample: default_sample(), sample_size_mm: default_sample_size(), quality: default_quality() }
+        Self {
+            sample: default_sample(),
+            sample_size_mm: default_sample_size(),
+            quality: default_quality(),
+        }
     }
 }
 

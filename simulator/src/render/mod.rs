@@ -1,1 +1,324 @@
-//! (being written)
+//! The simulator's frame renderer: what each simulated camera sees of the world snapshot.
+//!
+//! A procedural sample (height field + Lambert/Ward materials) on the turntable, lit by the
+//! rig's halogen lamps, tube, backlight and line laser, seen through pinhole cameras and a
+//! sensor model with shot and read noise. Each frame first makes an effect plan (see
+//! [`effects`]) so that, for example, a flat sample never casts a shadow ray; the plan and its
+//! reasons go into the frame notes.
+//!
+//! One concept per file: [`sample`] (procedural samples), [`heightfield`] (relief and ray
+//! marching), [`shadow`] (blocks surely lit, to skip shadow rays), [`geometry`] (poses), [`lights`], [`laser`], [`shading`] (BRDF), [`scene`]
+//! (intersection and direct lighting), [`effects`] (the plan), [`sensor`], [`quality`],
+//! [`rng`] (counter-based noise) and [`error`].
+
+pub mod effects;
+pub mod error;
+pub mod geometry;
+pub mod heightfield;
+pub mod laser;
+pub mod lights;
+pub mod quality;
+pub mod rng;
+pub mod sample;
+pub mod scene;
+pub mod sensor;
+pub mod shading;
+pub mod shadow;
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+use rayon::prelude::*;
+use serde_json::{Value, json};
+use stagehand_devices::rig::{LampKind, RigSpec};
+
+pub use error::RenderError;
+
+use crate::world_state::WorldSnapshot;
+use geometry::{CameraPose, RigAngles, ToSample};
+use laser::LaserSheet;
+use quality::Quality;
+use sample::Sample;
+use scene::{Scene, Shading};
+use sensor::Sensor;
+
+/// Largest sample edge accepted, in mm (the turntable is 400 mm across).
+const MAX_SAMPLE_SIZE_MM: f64 = 1000.0;
+
+/// The frame renderer for one rig. Cheap to share: cameras hold it in an `Arc` and render
+/// concurrently; built samples are cached per fixture name.
+#[derive(Debug)]
+pub struct Renderer {
+    rig: RigSpec,
+    quality: Quality,
+    samples: Mutex<HashMap<String, Arc<Sample>>>,
+}
+
+/// One rendered frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Rendered {
+    /// Interleaved RGB digital numbers (0..2^bit_depth − 1), width × height × 3, row-major
+    /// from the top-left pixel.
+    pub pixels: Vec<u16>,
+    /// What was rendered and why: quality, fixture, the effect plan with reasons, lights,
+    /// sensor settings and ray counts. Deterministic (no timings).
+    pub notes: Value,
+}
+
+impl Renderer {
+    /// A renderer for `rig`, at the rig's `sim.quality`.
+    pub fn new(rig: &RigSpec) -> Result<Renderer, RenderError> {
+        let quality = Quality::parse(&rig.sim.quality)?;
+        let size = rig.sim.sample_size_mm;
+        if !(size.is_finite() && size > 0.0 && size <= MAX_SAMPLE_SIZE_MM) {
+            return Err(RenderError::InvalidSampleSize(size));
+        }
+        Ok(Renderer {
+            rig: rig.clone(),
+            quality,
+            samples: Mutex::new(HashMap::new()),
+        })
+    }
+
+    /// Black level (dark offset) in digital numbers that the sensor model adds for
+    /// `camera_id`: 2% of its full scale. 0 for a camera the rig does not have.
+    pub fn black_level_dn(&self, camera_id: &str) -> f64 {
+        self.rig
+            .camera(camera_id)
+            .map_or(0.0, |c| sensor::black_level_dn(c.bit_depth))
+    }
+
+    /// The built sample for `fixture`, from the cache or built now.
+    fn sample(&self, fixture: &str) -> Result<Arc<Sample>, RenderError> {
+        let mut cache = self
+            .samples
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        if let Some(s) = cache.get(fixture) {
+            return Ok(Arc::clone(s));
+        }
+        let built = Sample::build(
+            fixture,
+            self.rig.sim.sample_size_mm as f32,
+            self.quality.relief_mm(),
+        )
+        .ok_or_else(|| RenderError::UnknownFixture(fixture.to_string()))?;
+        let built = Arc::new(built);
+        cache.insert(fixture.to_string(), Arc::clone(&built));
+        Ok(built)
+    }
+
+    /// Renders what camera `camera_id` sees of `world` for an exposure of `exposure_s`
+    /// starting at `world.rig_time_s`, at `gain`, with sensor noise drawn from `noise_seed`.
+    /// Exposure ≤ 0 yields black level plus read noise.
+    pub fn render(
+        &self,
+        world: &WorldSnapshot,
+        camera_id: &str,
+        exposure_s: f64,
+        gain: f64,
+        noise_seed: u64,
+    ) -> Result<Rendered, RenderError> {
+        let cam = self
+            .rig
+            .camera(camera_id)
+            .ok_or_else(|| RenderError::UnknownCamera {
+                camera: camera_id.to_string(),
+                rig: self.rig.rig.name.clone(),
+                known: self
+                    .rig
+                    .cameras
+                    .iter()
+                    .map(|c| c.id.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            })?;
+        check_inputs(world, exposure_s, gain)?;
+        let sample = self.sample(&world.fixture)?;
+        let angles = RigAngles::from_world(&self.rig, &world.axes);
+        let to_sample = ToSample::new(angles.turntable_deg);
+        let pose = CameraPose::new(cam, to_sample);
+        let (lights, unknown_lamps) = lights::lit_lamps(&self.rig, world, angles, to_sample);
+        let laser = match &world.laser {
+            None => None,
+            Some(beam) => {
+                let spec = self
+                    .rig
+                    .laser
+                    .as_ref()
+                    .ok_or_else(|| RenderError::NoLaser(self.rig.rig.name.clone()))?;
+                let sheet = LaserSheet::new(spec, beam, angles.light_arc_deg, to_sample);
+                Some((sheet, beam.tilt_deg, beam.colour_nm, spec.power_mw))
+            }
+        };
+        let plan = effects::plan(
+            &sample,
+            &lights,
+            laser.as_ref().map(|l| (&l.0, l.1, l.2, l.3)),
+            self.quality,
+        );
+        let shading = Shading {
+            shadows: plan.shadows.on,
+            specular: plan.specular.on,
+            quality: self.quality,
+        };
+        let tubes = lights::tube_bodies(&self.rig, world, to_sample);
+        let scene = Scene::new(&sample, lights, laser.map(|l| l.0), tubes, shading);
+        let sensor = Sensor::new(cam.bit_depth, exposure_s, gain, noise_seed);
+        let width = cam.width as usize;
+        let mut pixels = vec![0u16; width * cam.height as usize * 3];
+        let lit = exposure_s > 0.0 && scene.has_light();
+        let shadow_rays: u64 = pixels
+            .par_chunks_mut(width * 3)
+            .enumerate()
+            .map(|(y, row)| {
+                let mut rays = 0u64;
+                for x in 0..width {
+                    let radiance = if lit {
+                        scene.pixel(&pose, x as u32, y as u32, &mut rays)
+                    } else {
+                        glam::Vec3A::ZERO
+                    };
+                    let index = (y * width + x) as u64;
+                    row[x * 3..x * 3 + 3]
+                        .copy_from_slice(&sensor.digitise_rgb(radiance.to_array(), index));
+                }
+                rays
+            })
+            .sum();
+        let notes = self.notes(&NoteInputs {
+            camera: cam,
+            sample: &sample,
+            scene: &scene,
+            plan: &plan,
+            angles,
+            world,
+            exposure_s,
+            gain,
+            unknown_lamps,
+            shadow_rays,
+            lit,
+        });
+        Ok(Rendered { pixels, notes })
+    }
+
+    fn notes(&self, n: &NoteInputs<'_>) -> Value {
+        let lights: Vec<Value> = n
+            .scene
+            .lights()
+            .iter()
+            .map(|l| {
+                let kind = match l.kind {
+                    LampKind::Halogen => "halogen",
+                    LampKind::Tube => "tube",
+                    LampKind::Backlight => "backlight",
+                };
+                json!({ "id": l.id, "kind": kind, "output": l.output })
+            })
+            .collect();
+        let black = sensor::black_level_dn(n.camera.bit_depth);
+        let mut notes = json!({
+            "renderer": "stagehand-sim direct lighting v1",
+            "camera": n.camera.id,
+            "fixture": n.sample.name,
+            "quality": self.quality.name(),
+            "samples_per_pixel": self.quality.spp(),
+            "light_samples_per_pixel": {
+                "halogen": self.quality.halogen_samples(),
+                "tube": self.quality.tube_samples(),
+            },
+            "effects": n.plan.to_json(),
+            "lights": lights,
+            "geometry": {
+                "turntable_deg": n.angles.turntable_deg,
+                "light_arc_deg": n.angles.light_arc_deg,
+                "cart_mm": n.world.cart_mm,
+                "sample_size_mm": n.sample.size_mm,
+                "relief_max_mm": n.sample.grid.as_ref().map_or(0.0, |g| g.zmax()),
+                "relief_grid_mm": n.sample.grid.as_ref().map(|g| n.sample.size_mm / g.cells() as f32),
+            },
+            "sensor": {
+                "exposure_s": n.exposure_s,
+                "gain": n.gain,
+                "bit_depth": n.camera.bit_depth,
+                "full_well_e": sensor::FULL_WELL_E,
+                "read_noise_dn": sensor::READ_NOISE_DN_12BIT * n.gain * sensor::max_dn(n.camera.bit_depth) / 4095.0,
+                "response": format!("y = x(1 - {c} + {c}x) of full scale", c = sensor::RESPONSE_CURVATURE),
+                "light_integrated": n.lit,
+            },
+            "black_level_dn": black,
+            "stats": { "shadow_rays": n.shadow_rays, "surely_lit_blocks": n.scene.lit_blocks() },
+        });
+        if !n.unknown_lamps.is_empty() {
+            notes["ignored_lamps"] = json!(n.unknown_lamps);
+        }
+        notes
+    }
+}
+
+/// Everything the notes record about one frame.
+struct NoteInputs<'a> {
+    camera: &'a stagehand_devices::rig::CameraSpec,
+    sample: &'a Sample,
+    scene: &'a Scene<'a>,
+    plan: &'a effects::Plan,
+    angles: RigAngles,
+    world: &'a WorldSnapshot,
+    exposure_s: f64,
+    gain: f64,
+    unknown_lamps: Vec<String>,
+    shadow_rays: u64,
+    lit: bool,
+}
+
+/// Rejects numbers that would make the frame meaningless (NaN angles, negative gain, ...).
+fn check_inputs(world: &WorldSnapshot, exposure_s: f64, gain: f64) -> Result<(), RenderError> {
+    let bad = |what: String, expected: &'static str, got: f64| {
+        Err(RenderError::InvalidInput {
+            what,
+            expected,
+            got,
+        })
+    };
+    if !exposure_s.is_finite() {
+        return bad(
+            "exposure_s".into(),
+            "a finite number of seconds",
+            exposure_s,
+        );
+    }
+    if !(gain.is_finite() && gain > 0.0) {
+        return bad("gain".into(), "a positive finite factor", gain);
+    }
+    for (id, &deg) in &world.axes {
+        if !deg.is_finite() {
+            return bad(format!("axis `{id}` angle"), "finite degrees", deg);
+        }
+    }
+    for (id, &out) in &world.lamps {
+        if !(out.is_finite() && out >= 0.0) {
+            return bad(
+                format!("lamp `{id}` output"),
+                "a fraction of steady state ≥ 0",
+                out,
+            );
+        }
+    }
+    if !world.cart_mm.is_finite() {
+        return bad("cart_mm".into(), "finite millimetres", world.cart_mm);
+    }
+    if let Some(beam) = &world.laser {
+        for (what, v) in [
+            ("laser tilt_deg", beam.tilt_deg),
+            ("laser mount_elevation_deg", beam.mount_elevation_deg),
+        ] {
+            if !v.is_finite() {
+                return bad(what.into(), "finite degrees", v);
+            }
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests;

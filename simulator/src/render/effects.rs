@@ -1,0 +1,198 @@
+//! The effect plan: which effects this frame's scene calls for, each with the reason, so the
+//! renderer spends time only where it changes the image and the notes say why.
+
+use serde_json::{Value, json};
+use stagehand_devices::rig::LampKind;
+
+use super::laser::LaserSheet;
+use super::lights::{Emitter, Light};
+use super::quality::Quality;
+use super::sample::Sample;
+
+/// One effect switched on or off, and why.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Decision {
+    /// Whether the renderer computes the effect.
+    pub on: bool,
+    /// A short reason with the numbers behind it.
+    pub why: String,
+}
+
+impl Decision {
+    fn on(why: impl Into<String>) -> Decision {
+        Decision {
+            on: true,
+            why: why.into(),
+        }
+    }
+    fn off(why: impl Into<String>) -> Decision {
+        Decision {
+            on: false,
+            why: why.into(),
+        }
+    }
+    fn to_json(&self) -> Value {
+        json!({ "on": self.on, "why": self.why })
+    }
+}
+
+/// Every effect decision for one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Plan {
+    /// Hard shadows by marching the height field toward each light sample.
+    pub shadows: Decision,
+    /// The Ward specular lobe.
+    pub specular: Decision,
+    /// The laser sheet.
+    pub laser: Decision,
+    /// Halogen lamps as 10 mm disks rather than points.
+    pub area_lights: Decision,
+    /// The reflectometer tube integrated along its length.
+    pub linear_light: Decision,
+    /// Backlight seen through the sample.
+    pub backlight: Decision,
+}
+
+impl Plan {
+    /// The plan as the `effects` object of the frame notes.
+    pub fn to_json(&self) -> Value {
+        json!({
+            "direct": "always",
+            "shadows": self.shadows.to_json(),
+            "specular": self.specular.to_json(),
+            "laser": self.laser.to_json(),
+            "area_lights": self.area_lights.to_json(),
+            "linear_light": self.linear_light.to_json(),
+            "backlight": self.backlight.to_json(),
+            "interreflection": { "on": false, "why": "not modelled by this renderer" },
+            "subsurface": { "on": false, "why": "not modelled by this renderer" },
+        })
+    }
+}
+
+/// Decides the effects for `sample` under the lit `lights` and the laser.
+pub fn plan(
+    sample: &Sample,
+    lights: &[Light],
+    laser: Option<(&LaserSheet, f64, u32, f64)>,
+    quality: Quality,
+) -> Plan {
+    Plan {
+        shadows: shadows(sample, lights, laser.map(|l| l.0)),
+        specular: specular(sample, lights, laser.is_some()),
+        laser: match laser {
+            Some((_, tilt, nm, mw)) => {
+                Decision::on(format!("{nm} nm sheet, {mw} mW, tilt {tilt:.2}°"))
+            }
+            None => Decision::off("laser off"),
+        },
+        area_lights: area_lights(lights, quality),
+        linear_light: linear_light(lights, quality),
+        backlight: backlight(sample, lights),
+    }
+}
+
+/// A height field can shadow a point only where the terrain rises faster than the ray toward
+/// the light: if its steepest slope is below the lowest light elevation, no ray is blocked.
+fn shadows(sample: &Sample, lights: &[Light], laser: Option<&LaserSheet>) -> Decision {
+    let zmax = sample.grid.as_ref().map_or(0.0, |g| g.zmax());
+    let mut elevation = lights
+        .iter()
+        .filter_map(|l| l.min_elevation_rad(zmax))
+        .fold(f32::INFINITY, f32::min);
+    if let Some(sheet) = laser {
+        let q = sheet.origin;
+        let e = (q.z - zmax).atan2(q.truncate().length() + super::lights::TURNTABLE_RADIUS_MM);
+        elevation = elevation.min(e);
+    }
+    if !elevation.is_finite() {
+        return Decision::off("no lit source casts shadows");
+    }
+    let elev_deg = elevation.to_degrees();
+    let Some(grid) = &sample.grid else {
+        return Decision::off(format!(
+            "flat height field: max slope 0° below light elevation {elev_deg:.1}°"
+        ));
+    };
+    if grid.edge_max() > 1.0e-4 {
+        return Decision::on(format!(
+            "sample edge is a {:.2} mm cliff (slope 90°) above light elevation {elev_deg:.1}°",
+            grid.edge_max()
+        ));
+    }
+    let slope_deg = grid.max_slope().atan().to_degrees();
+    if slope_deg < elev_deg {
+        Decision::off(format!(
+            "max slope {slope_deg:.1}° below light elevation {elev_deg:.1}°"
+        ))
+    } else {
+        Decision::on(format!(
+            "max slope {slope_deg:.1}° ≥ light elevation {elev_deg:.1}°"
+        ))
+    }
+}
+
+fn specular(sample: &Sample, lights: &[Light], laser: bool) -> Decision {
+    let reflected = laser
+        || lights
+            .iter()
+            .any(|l| !matches!(l.emitter, Emitter::Backlight { .. }));
+    if !reflected {
+        return Decision::off("no lit source reflects off the sample");
+    }
+    if sample.max_ks > 0.0 {
+        Decision::on(format!("ks={:.2}>0", sample.max_ks))
+    } else {
+        Decision::off(format!("ks=0 everywhere on `{}`", sample.name))
+    }
+}
+
+fn area_lights(lights: &[Light], quality: Quality) -> Decision {
+    if !lights.iter().any(|l| l.kind == LampKind::Halogen) {
+        return Decision::off("no halogen lamp lit");
+    }
+    match quality.halogen_samples() {
+        1 => Decision::off(format!("{}: halogen lamps as point lights", quality.name())),
+        n => Decision::on(format!(
+            "{}: halogen lamps as 10 mm disks, {n} samples per pixel",
+            quality.name()
+        )),
+    }
+}
+
+fn linear_light(lights: &[Light], quality: Quality) -> Decision {
+    match lights.iter().find_map(|l| match l.emitter {
+        Emitter::Tube {
+            start,
+            axis,
+            length,
+            ..
+        } => Some(start + axis * (0.5 * length)),
+        _ => None,
+    }) {
+        Some(c) => Decision::on(format!(
+            "tube at x={:.1} mm, z={:.1} mm: {} samples per pixel along its length",
+            c.x,
+            c.z,
+            quality.tube_samples()
+        )),
+        None => Decision::off("tube off"),
+    }
+}
+
+fn backlight(sample: &Sample, lights: &[Light]) -> Decision {
+    match lights
+        .iter()
+        .find(|l| matches!(l.emitter, Emitter::Backlight { .. }))
+    {
+        None => Decision::off("backlight off"),
+        Some(_) if sample.max_transmittance <= 0.0 => {
+            Decision::off(format!("`{}` is opaque", sample.name))
+        }
+        Some(l) => Decision::on(format!(
+            "backlight at {:.0}% through transmittance up to {:.2}",
+            100.0 * l.output,
+            sample.max_transmittance
+        )),
+    }
+}

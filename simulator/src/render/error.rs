@@ -1,0 +1,44 @@
+//! Why a frame could not be rendered; every message says what to change.
+
+use thiserror::Error;
+
+/// A frame the renderer cannot produce, with a sentence saying what to do about it.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum RenderError {
+    /// The camera id is not one of the rig's cameras.
+    #[error("camera `{camera}` is not in rig `{rig}`; use one of: {known}")]
+    UnknownCamera {
+        /// The id that was asked for.
+        camera: String,
+        /// The rig's name.
+        rig: String,
+        /// The rig's camera ids, comma-separated.
+        known: String,
+    },
+    /// The fixture on the stage has no procedural model.
+    #[error(
+        "fixture `{0}` is unknown; place one of: flat, bumps, steps, weave, checkerboard, colorchecker, planes"
+    )]
+    UnknownFixture(String),
+    /// The rig's `sim.quality` is not a preset the renderer knows.
+    #[error("sim.quality `{0}` is unknown; set it to preview, standard or reference")]
+    UnknownQuality(String),
+    /// The rig's `sim.sample_size_mm` cannot be used to build a sample.
+    #[error("sim.sample_size_mm must be a positive number of millimetres up to 1000, got {0}")]
+    InvalidSampleSize(f64),
+    /// The world snapshot says the laser emits but the rig has no laser.
+    #[error(
+        "the world has the laser emitting but rig `{0}` has no [laser] table; add one or switch the laser off"
+    )]
+    NoLaser(String),
+    /// A number in the request or the world snapshot is out of range or not finite.
+    #[error("{what} must be {expected}, got {got}")]
+    InvalidInput {
+        /// Which value is wrong.
+        what: String,
+        /// What it must be.
+        expected: &'static str,
+        /// The value received.
+        got: f64,
+    },
+}

@@ -1,0 +1,195 @@
+//! Where everything is, in the sample's frame: the turntable turns the sample, so a device at
+//! world azimuth a appears at a − θt. Cameras, lamps and the laser are placed from the rig
+//! spec and the axis angles of the world snapshot.
+
+use std::collections::BTreeMap;
+
+use glam::Vec3A;
+use stagehand_devices::rig::{AxisRole, CameraSpec, RigSpec};
+
+/// Axis angles that move the optics, in degrees (a missing axis reads 0°).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RigAngles {
+    /// Turntable angle θt: rotates the sample about z.
+    pub turntable_deg: f64,
+    /// Light arc angle: azimuth of the lamps and the laser mount.
+    pub light_arc_deg: f64,
+}
+
+impl RigAngles {
+    /// Reads the angles of the axes with the turntable and light-arc roles.
+    pub fn from_world(rig: &RigSpec, axes: &BTreeMap<String, f64>) -> RigAngles {
+        let angle = |role| {
+            rig.axis_with_role(role)
+                .and_then(|a| axes.get(&a.id))
+                .copied()
+                .unwrap_or(0.0)
+        };
+        RigAngles {
+            turntable_deg: angle(AxisRole::Turntable),
+            light_arc_deg: angle(AxisRole::LightArc),
+        }
+    }
+}
+
+/// Rotation from the world frame into the sample frame (by −θt about z).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ToSample {
+    cos: f32,
+    sin: f32,
+}
+
+impl ToSample {
+    /// The rotation for turntable angle `turntable_deg`.
+    pub fn new(turntable_deg: f64) -> ToSample {
+        let a = -turntable_deg.to_radians();
+        ToSample {
+            cos: a.cos() as f32,
+            sin: a.sin() as f32,
+        }
+    }
+
+    /// Rotates a world point or direction into the sample frame.
+    pub fn apply(&self, v: Vec3A) -> Vec3A {
+        Vec3A::new(
+            self.cos * v.x - self.sin * v.y,
+            self.sin * v.x + self.cos * v.y,
+            v.z,
+        )
+    }
+}
+
+/// World position of a device at (azimuth, elevation, distance) about the origin.
+pub fn spherical(azimuth_deg: f64, elevation_deg: f64, distance_mm: f64) -> Vec3A {
+    let (a, e) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
+    Vec3A::new(
+        (distance_mm * e.cos() * a.cos()) as f32,
+        (distance_mm * e.cos() * a.sin()) as f32,
+        (distance_mm * e.sin()) as f32,
+    )
+}
+
+/// Horizontal unit vector perpendicular to the vertical plane at azimuth `azimuth_deg`
+/// (the light arc's tangent at its foot; the laser fan spreads along it).
+pub fn horizontal_tangent(azimuth_deg: f64) -> Vec3A {
+    let a = azimuth_deg.to_radians();
+    Vec3A::new(-a.sin() as f32, a.cos() as f32, 0.0)
+}
+
+/// Rotates `v` by `angle_rad` about the unit `axis` (Rodrigues).
+pub fn rotate_about(v: Vec3A, axis: Vec3A, angle_rad: f32) -> Vec3A {
+    let (s, c) = angle_rad.sin_cos();
+    v * c + axis.cross(v) * s + axis * axis.dot(v) * (1.0 - c)
+}
+
+/// A pinhole camera looking at the origin with image up ≈ +z, in the sample frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraPose {
+    /// Centre of projection.
+    pub origin: Vec3A,
+    /// Optical axis.
+    pub forward: Vec3A,
+    /// Image +x direction.
+    pub right: Vec3A,
+    /// Image up direction (image rows grow downward).
+    pub up: Vec3A,
+    /// Focal length in pixels.
+    pub focal_px: f32,
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+}
+
+impl CameraPose {
+    /// The camera of `spec` with the turntable at `to_sample`.
+    pub fn new(spec: &CameraSpec, to_sample: ToSample) -> CameraPose {
+        let pos = spherical(spec.azimuth_deg, spec.elevation_deg, spec.distance_mm);
+        let forward = (-pos).normalize_or(-Vec3A::Z);
+        let right = forward
+            .cross(Vec3A::Z)
+            .try_normalize()
+            .unwrap_or_else(|| horizontal_tangent(spec.azimuth_deg));
+        let up = right.cross(forward);
+        let focal_px = (0.5 * spec.width as f64 / (0.5 * spec.fov_deg.to_radians()).tan()) as f32;
+        CameraPose {
+            origin: to_sample.apply(pos),
+            forward: to_sample.apply(forward),
+            right: to_sample.apply(right),
+            up: to_sample.apply(up),
+            focal_px,
+            width: spec.width,
+            height: spec.height,
+        }
+    }
+
+    /// Unit ray direction through image point (x, y) in pixels from the top-left corner.
+    #[inline]
+    pub fn ray(&self, x: f32, y: f32) -> Vec3A {
+        let dx = x - 0.5 * self.width as f32;
+        let dy = 0.5 * self.height as f32 - y;
+        (self.forward * self.focal_px + self.right * dx + self.up * dy).normalize()
+    }
+
+    /// Image position (x, y) in pixels of a sample-frame point, if it is in front.
+    pub fn project(&self, p: Vec3A) -> Option<(f32, f32)> {
+        let v = p - self.origin;
+        let z = v.dot(self.forward);
+        if z <= 0.0 {
+            return None;
+        }
+        let x = 0.5 * self.width as f32 + self.focal_px * v.dot(self.right) / z;
+        let y = 0.5 * self.height as f32 - self.focal_px * v.dot(self.up) / z;
+        Some((x, y))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cam(az: f64, el: f64) -> CameraSpec {
+        CameraSpec {
+            id: "c".into(),
+            backend: stagehand_devices::rig::Backend::Sim,
+            port: None,
+            width: 64,
+            height: 48,
+            fps: 10.0,
+            bit_depth: 12,
+            azimuth_deg: az,
+            elevation_deg: el,
+            distance_mm: 600.0,
+            fov_deg: 11.0,
+            min_exposure_s: 1e-5,
+            max_exposure_s: 1.0,
+            max_gain: 1.0,
+        }
+    }
+
+    #[test]
+    fn camera_looks_at_origin_with_plus_y_to_the_right() {
+        let pose = CameraPose::new(&cam(0.0, 30.0), ToSample::new(0.0));
+        let centre = pose.ray(32.0, 24.0);
+        assert!((centre - (-pose.origin).normalize()).length() < 1e-5);
+        let (x, y) = pose.project(Vec3A::new(0.0, 5.0, 0.0)).expect("in front");
+        assert!(
+            x > 32.0 && (y - 24.0).abs() < 1e-3,
+            "+y appears right of centre: {x} {y}"
+        );
+        let (_, y) = pose.project(Vec3A::new(0.0, 0.0, 5.0)).expect("in front");
+        assert!(y < 24.0, "+z appears above centre");
+        // Looking straight down still gives a well-defined frame.
+        let down = CameraPose::new(&cam(0.0, 90.0), ToSample::new(0.0));
+        assert!(down.right.is_finite() && (down.right.length() - 1.0).abs() < 1e-5);
+    }
+
+    #[test]
+    fn turntable_moves_devices_the_other_way_in_the_sample_frame() {
+        let p = ToSample::new(90.0).apply(spherical(0.0, 0.0, 100.0));
+        assert!((p - Vec3A::new(0.0, -100.0, 0.0)).length() < 1e-3, "{p}");
+        let t = horizontal_tangent(0.0);
+        let r = rotate_about(Vec3A::X, t, std::f32::consts::FRAC_PI_2);
+        assert!((r - Vec3A::new(0.0, 0.0, -1.0)).length() < 1e-5, "{r}");
+    }
+}

@@ -1,0 +1,207 @@
+//! The line laser's sheet of light: its plane from the arc angle, mount elevation and tilt,
+//! the Gaussian irradiance profile across it, and the camera's colour response to its line.
+
+use glam::Vec3A;
+use stagehand_devices::rig::LaserSpec;
+
+use super::geometry::{ToSample, horizontal_tangent, rotate_about, spherical};
+use crate::world_state::LaserBeam;
+
+/// Half of the fan's opening angle within the sheet.
+const FAN_HALF_ANGLE_DEG: f32 = 30.0;
+/// Peak irradiance per milliwatt at `distance_mm` for a 0.4 mm sheet, in units of the
+/// reference lamp's irradiance (power 1 at 800 mm): a 10 mW line is ~50× a halogen lamp.
+const IRRADIANCE_PER_MW: f32 = 5.0;
+/// Sheet half-width the constant above is quoted for.
+const REFERENCE_HALF_WIDTH_MM: f32 = 0.4;
+
+/// The laser sheet in the sample frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LaserSheet {
+    /// Position of the emitter (the fan's apex).
+    pub origin: Vec3A,
+    /// Central ray direction (unit).
+    pub centre: Vec3A,
+    /// Direction the fan spreads along (unit, horizontal in the world).
+    pub fan_axis: Vec3A,
+    /// Unit normal of the sheet plane.
+    pub normal: Vec3A,
+    /// 1/e² half-thickness of the sheet.
+    pub half_width_mm: f32,
+    /// Peak irradiance at the reference distance, in reference-lamp units.
+    pub peak: f32,
+    /// Emitter distance from the origin: the distance at which `peak` applies.
+    pub ref_distance_mm: f32,
+    /// Camera RGB response to the laser wavelength.
+    pub camera_rgb: Vec3A,
+    /// Weights that turn an RGB albedo into the reflectance at the laser wavelength.
+    pub reflect_weights: Vec3A,
+    cos_fan: f32,
+}
+
+impl LaserSheet {
+    /// The sheet of `spec` emitting `beam`, with the light arc at `light_arc_deg`. Positive
+    /// tilt turns the central ray upward about the arc tangent, moving the line away from the
+    /// laser.
+    pub fn new(
+        spec: &LaserSpec,
+        beam: &LaserBeam,
+        light_arc_deg: f64,
+        to_sample: ToSample,
+    ) -> LaserSheet {
+        let origin = spherical(light_arc_deg, beam.mount_elevation_deg, spec.distance_mm);
+        let t = horizontal_tangent(light_arc_deg);
+        let centre = rotate_about(
+            (-origin).normalize_or(-Vec3A::Z),
+            t,
+            beam.tilt_deg.to_radians() as f32,
+        );
+        let normal = centre.cross(t).normalize_or(Vec3A::X);
+        let width = spec.sheet_half_width_mm as f32;
+        let rgb = camera_response(beam.colour_nm);
+        LaserSheet {
+            origin: to_sample.apply(origin),
+            centre: to_sample.apply(centre),
+            fan_axis: to_sample.apply(t),
+            normal: to_sample.apply(normal),
+            half_width_mm: width,
+            peak: IRRADIANCE_PER_MW * spec.power_mw as f32 * REFERENCE_HALF_WIDTH_MM
+                / width.max(1.0e-3),
+            ref_distance_mm: spec.distance_mm as f32,
+            camera_rgb: rgb,
+            reflect_weights: rgb / rgb.element_sum().max(1.0e-6),
+            cos_fan: FAN_HALF_ANGLE_DEG.to_radians().cos(),
+        }
+    }
+
+    /// Signed distance of `p` from the sheet plane in mm.
+    #[inline]
+    pub fn distance(&self, p: Vec3A) -> f32 {
+        (p - self.origin).dot(self.normal)
+    }
+
+    /// Irradiance at `p` on a surface square to the incoming ray (multiply by the cosine of
+    /// incidence), the unit direction from `p` toward the emitter, and the distance to it.
+    /// `footprint_var_mm2` is the variance of the sheet distance over the pixel footprint:
+    /// the Gaussian profile is averaged over it (energy-preserving), so a line thinner than
+    /// a pixel still shows at one sample per pixel. Zero outside the fan or more than three
+    /// (effective) half-widths from the sheet.
+    #[inline]
+    pub fn irradiance(&self, p: Vec3A, footprint_var_mm2: f32) -> (f32, Vec3A, f32) {
+        let v = p - self.origin;
+        let d = v.dot(self.normal);
+        let sigma2 = 0.25 * self.half_width_mm * self.half_width_mm;
+        let var = sigma2 + footprint_var_mm2.max(0.0);
+        // Three half-widths (= 6σ) on either side.
+        if d * d > 36.0 * var {
+            return (0.0, Vec3A::Z, 0.0);
+        }
+        let r = v.length();
+        if r <= 1.0e-3 {
+            return (0.0, Vec3A::Z, 0.0);
+        }
+        // Angle from the central ray, measured within the sheet.
+        let in_plane = v - self.normal * d;
+        let along = in_plane.dot(self.centre);
+        if along <= self.cos_fan * in_plane.length() {
+            return (0.0, Vec3A::Z, 0.0);
+        }
+        let gauss = (sigma2 / var).sqrt() * (-0.5 * d * d / var).exp();
+        (self.peak * gauss * self.ref_distance_mm / r, -v / r, r)
+    }
+
+    /// Where the central ray crosses the plane z = `z`, if it descends.
+    pub fn centre_hit(&self, z: f32) -> Option<Vec3A> {
+        if self.centre.z >= 0.0 {
+            return None;
+        }
+        let t = (z - self.origin.z) / self.centre.z;
+        Some(self.origin + self.centre * t)
+    }
+}
+
+/// RGB response of the simulated cameras to monochromatic light of `nm`, interpolated
+/// between anchors (650 nm → (1.0, 0.08, 0.02), 532 → (0.10, 1.0, 0.12), 473 → (0.02, 0.20, 1.0)).
+pub fn camera_response(nm: u32) -> Vec3A {
+    const ANCHORS: [(f32, [f32; 3]); 8] = [
+        (380.0, [0.0, 0.0, 0.0]),
+        (420.0, [0.03, 0.02, 0.5]),
+        (473.0, [0.02, 0.20, 1.0]),
+        (532.0, [0.10, 1.0, 0.12]),
+        (590.0, [0.7, 0.55, 0.03]),
+        (650.0, [1.0, 0.08, 0.02]),
+        (720.0, [0.35, 0.02, 0.01]),
+        (800.0, [0.0, 0.0, 0.0]),
+    ];
+    let x = nm as f32;
+    for pair in ANCHORS.windows(2) {
+        let ((x0, a), (x1, b)) = (pair[0], pair[1]);
+        if x >= x0 && x <= x1 {
+            let s = (x - x0) / (x1 - x0);
+            return Vec3A::new(
+                a[0] + (b[0] - a[0]) * s,
+                a[1] + (b[1] - a[1]) * s,
+                a[2] + (b[2] - a[2]) * s,
+            );
+        }
+    }
+    Vec3A::ZERO
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec() -> LaserSpec {
+        LaserSpec {
+            id: "laser".into(),
+            backend: stagehand_devices::rig::Backend::Sim,
+            port: None,
+            colours_nm: vec![650],
+            fitted_nm: 650,
+            tilt_axis: "tilt".into(),
+            mount_elevation_deg: 45.0,
+            distance_mm: 700.0,
+            power_mw: 10.0,
+            sheet_half_width_mm: 0.4,
+        }
+    }
+
+    #[test]
+    fn untilted_sheet_passes_through_the_origin_along_the_tangent() {
+        let beam = LaserBeam {
+            colour_nm: 650,
+            tilt_deg: 0.0,
+            mount_elevation_deg: 45.0,
+        };
+        let s = LaserSheet::new(&spec(), &beam, 0.0, ToSample::new(0.0));
+        let (e0, _, _) = s.irradiance(Vec3A::ZERO, 0.0);
+        let (e1, _, _) = s.irradiance(Vec3A::new(0.0, 30.0, 0.0), 0.0);
+        let (e2, _, _) = s.irradiance(Vec3A::new(2.0, 0.0, 0.0), 0.0);
+        assert!((e0 - 50.0).abs() < 0.5, "peak {e0}");
+        assert!(e1 > 0.9 * e0, "the fan spreads along y");
+        assert_eq!(e2, 0.0, "2 mm off the sheet is dark");
+        assert!(s.centre_hit(0.0).is_some_and(|p| p.length() < 1e-3));
+    }
+
+    #[test]
+    fn tilt_moves_the_line_away_from_the_laser() {
+        let beam = LaserBeam {
+            colour_nm: 650,
+            tilt_deg: 2.0,
+            mount_elevation_deg: 45.0,
+        };
+        let s = LaserSheet::new(&spec(), &beam, 0.0, ToSample::new(0.0));
+        let hit = s.centre_hit(0.0).expect("descends");
+        assert!(hit.x < -20.0, "{hit}");
+    }
+
+    #[test]
+    fn response_matches_the_anchors() {
+        let close = |a: Vec3A, b: Vec3A| (a - b).abs().max_element() < 1e-6;
+        assert!(close(camera_response(650), Vec3A::new(1.0, 0.08, 0.02)));
+        assert!(close(camera_response(532), Vec3A::new(0.10, 1.0, 0.12)));
+        assert!(close(camera_response(473), Vec3A::new(0.02, 0.20, 1.0)));
+        assert_eq!(camera_response(1064), Vec3A::ZERO);
+    }
+}

@@ -1,0 +1,159 @@
+//! The camera sensor: radiance to electrons, photon shot noise, full well, gain, a gently
+//! non-linear response, read noise, black level, saturation and quantisation to the bit depth.
+
+use super::rng::{GAUSS_BITS, gaussian, hash3, mix64};
+
+/// Electrons a pixel holds before it clips.
+pub const FULL_WELL_E: f64 = 20_000.0;
+/// Read noise in DN at 12 bits and gain 1 (scales with gain and bit depth).
+pub const READ_NOISE_DN_12BIT: f64 = 3.0;
+/// Dark offset as a fraction of full scale.
+pub const BLACK_FRACTION: f64 = 0.02;
+/// Fraction of full scale reached by white Lambert lit by the reference lamp at normal
+/// incidence, exposed for `REFERENCE_EXPOSURE_S` at gain 1.
+pub const REFERENCE_FILL: f64 = 0.6;
+/// Exposure at which `REFERENCE_FILL` is reached.
+pub const REFERENCE_EXPOSURE_S: f64 = 0.02;
+/// Curvature of the response y = x·(1 − c + c·x) on the fraction of full scale x: monotone,
+/// close to x^1.02 over the useful range.
+pub const RESPONSE_CURVATURE: f64 = 0.03;
+
+/// Largest digital number at `bit_depth`.
+pub fn max_dn(bit_depth: u8) -> f64 {
+    ((1u64 << bit_depth.min(16)) - 1) as f64
+}
+
+/// Black level in DN (2% of full scale, rounded) at `bit_depth`.
+pub fn black_level_dn(bit_depth: u8) -> f64 {
+    (BLACK_FRACTION * max_dn(bit_depth)).round()
+}
+
+/// Conversion from scene radiance to digital numbers for one exposure.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sensor {
+    max_dn: f64,
+    black: f64,
+    electrons_per_radiance: f64,
+    dn_per_electron: f64,
+    read_sigma_dn: f64,
+    seed: u64,
+}
+
+impl Sensor {
+    /// A sensor of `bit_depth` exposed for `exposure_s` (≤ 0 collects nothing) at `gain`,
+    /// with noise drawn from `seed`.
+    pub fn new(bit_depth: u8, exposure_s: f64, gain: f64, seed: u64) -> Sensor {
+        let max = max_dn(bit_depth);
+        // White Lambert under the reference lamp has radiance 1/π.
+        let per_radiance_second =
+            std::f64::consts::PI * REFERENCE_FILL * FULL_WELL_E / REFERENCE_EXPOSURE_S;
+        Sensor {
+            max_dn: max,
+            black: black_level_dn(bit_depth),
+            electrons_per_radiance: per_radiance_second * exposure_s.max(0.0),
+            dn_per_electron: gain * max / FULL_WELL_E,
+            read_sigma_dn: READ_NOISE_DN_12BIT * gain * max / 4095.0,
+            seed,
+        }
+    }
+
+    /// Black level in DN.
+    pub fn black_dn(&self) -> f64 {
+        self.black
+    }
+
+    /// Mean electrons collected from `radiance` (before noise and clipping).
+    pub fn electrons(&self, radiance: f32) -> f64 {
+        (radiance as f64 * self.electrons_per_radiance).max(0.0)
+    }
+
+    /// The digital numbers of pixel `pixel` for RGB `radiance`. The noise is a pure function
+    /// of (seed, pixel, channel): two 64-bit hashes per pixel, 12 bits per Gaussian draw.
+    #[inline]
+    pub fn digitise_rgb(&self, radiance: [f32; 3], pixel: u64) -> [u16; 3] {
+        let shot_bits = hash3(self.seed, pixel, 0, 0);
+        let read_bits = mix64(shot_bits ^ 0x27d4_eb2f_1656_67c5);
+        let mut out = [0u16; 3];
+        for (c, (o, &r)) in out.iter_mut().zip(radiance.iter()).enumerate() {
+            let shift = GAUSS_BITS * c as u32;
+            *o = self.digitise_with(
+                r,
+                gaussian(shot_bits >> shift),
+                gaussian(read_bits >> shift),
+            );
+        }
+        out
+    }
+
+    /// The digital number for `radiance` at channel `channel` (0..3) of pixel `pixel`: the
+    /// value `digitise_rgb` produces for that channel.
+    pub fn digitise(&self, radiance: f32, pixel: u64, channel: u64) -> u16 {
+        let mut rgb = [0.0; 3];
+        rgb[(channel % 3) as usize] = radiance;
+        self.digitise_rgb(rgb, pixel)[(channel % 3) as usize]
+    }
+
+    /// One channel from its mean radiance and two standard normal deviates.
+    #[inline]
+    fn digitise_with(&self, radiance: f32, shot: f64, read: f64) -> u16 {
+        let e = self.electrons(radiance);
+        let e = (e + shot * e.sqrt()).clamp(0.0, FULL_WELL_E);
+        let x = e * self.dn_per_electron / self.max_dn;
+        let y = x * (1.0 - RESPONSE_CURVATURE + RESPONSE_CURVATURE * x);
+        let dn = y * self.max_dn + self.black + read * self.read_sigma_dn;
+        // Round half up without a libm call: the clamped value is non-negative.
+        (dn.clamp(0.0, self.max_dn) + 0.5) as u16
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reference_lamp_on_white_fills_sixty_percent() {
+        let s = Sensor::new(12, 0.02, 1.0, 1);
+        let n = 4000u64;
+        let mean = (0..n)
+            .map(|p| s.digitise(std::f32::consts::FRAC_1_PI, p, 0) as f64)
+            .sum::<f64>()
+            / n as f64;
+        let fill = (mean - s.black_dn()) / 4095.0;
+        assert!((fill - 0.6).abs() < 0.02, "fill {fill}");
+    }
+
+    #[test]
+    fn saturates_at_the_bit_depth_maximum() {
+        for bits in [8u8, 12, 16] {
+            let s = Sensor::new(bits, 10.0, 4.0, 3);
+            let v = (0..100).map(|p| s.digitise(1.0, p, 1)).collect::<Vec<_>>();
+            assert!(
+                v.iter().all(|&d| d as f64 == max_dn(bits)),
+                "{bits} bits: {v:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn no_exposure_gives_black_level_plus_read_noise() {
+        let s = Sensor::new(12, 0.0, 1.0, 9);
+        let v: Vec<f64> = (0..5000).map(|p| s.digitise(100.0, p, 2) as f64).collect();
+        let mean = v.iter().sum::<f64>() / v.len() as f64;
+        let var = v.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / v.len() as f64;
+        assert!((mean - 82.0).abs() < 0.2, "mean {mean}");
+        assert!((var.sqrt() - 3.0).abs() < 0.3, "read noise {}", var.sqrt());
+    }
+
+    #[test]
+    fn response_is_monotone() {
+        let s = Sensor::new(12, 0.02, 1.0, 0);
+        let mut last = 0.0;
+        for k in 0..=1000 {
+            let x = k as f64 / 1000.0 * 1.2;
+            let y = x * (1.0 - RESPONSE_CURVATURE + RESPONSE_CURVATURE * x);
+            assert!(y >= last);
+            last = y;
+        }
+        assert_eq!(s.black_dn(), 82.0);
+    }
+}

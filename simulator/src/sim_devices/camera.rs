@@ -1,0 +1,124 @@
+//! A simulated camera: on each trigger pulse it exposes, renders the World as it was when the
+//! exposure started, reads out, and delivers the frame tagged with the pulse's trigger id.
+
+use std::sync::Arc;
+
+use stagehand_devices::DeviceError;
+use stagehand_devices::camera::CameraDriver;
+use stagehand_devices::error::DeviceResult;
+use stagehand_devices::frame::Frame;
+use stagehand_devices::rig::CameraSpec;
+use tokio::sync::broadcast;
+
+use crate::world::{Pulse, World};
+
+/// Simulated camera driver.
+pub struct SimCamera {
+    spec: CameraSpec,
+    world: Arc<World>,
+    exposure_s: f64,
+    gain: f64,
+    armed: Option<broadcast::Receiver<Pulse>>,
+}
+
+impl SimCamera {
+    pub fn new(spec: CameraSpec, world: Arc<World>) -> Self {
+        Self {
+            spec,
+            world,
+            exposure_s: 0.01,
+            gain: 1.0,
+            armed: None,
+        }
+    }
+
+    fn noise_seed(&self, trigger_id: u64) -> u64 {
+        // FNV-1a over (seed, camera id, trigger id): stable across runs and platforms.
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut eat = |bytes: &[u8]| {
+            for b in bytes {
+                h ^= u64::from(*b);
+                h = h.wrapping_mul(0x0100_0000_01b3);
+            }
+        };
+        eat(&self.world.seed().to_le_bytes());
+        eat(self.spec.id.as_bytes());
+        eat(&trigger_id.to_le_bytes());
+        h
+    }
+}
+
+impl CameraDriver for SimCamera {
+    async fn configure(&mut self, exposure_s: f64, gain: f64) -> DeviceResult<()> {
+        self.exposure_s = exposure_s;
+        self.gain = gain;
+        Ok(())
+    }
+
+    async fn arm(&mut self) -> DeviceResult<()> {
+        if self.armed.is_none() {
+            self.armed = Some(self.world.subscribe());
+        }
+        Ok(())
+    }
+
+    async fn disarm(&mut self) -> DeviceResult<()> {
+        self.armed = None;
+        Ok(())
+    }
+
+    async fn next_frame(&mut self) -> DeviceResult<Frame> {
+        let id = self.spec.id.clone();
+        let rx = self
+            .armed
+            .as_mut()
+            .ok_or_else(|| DeviceError::NotArmed { device: id.clone() })?;
+        let pulse = match rx.recv().await {
+            Ok(p) => p,
+            Err(broadcast::error::RecvError::Lagged(n)) => {
+                return Err(DeviceError::Other {
+                    device: id,
+                    message: format!("missed {n} trigger pulses; the camera was too slow"),
+                });
+            }
+            Err(broadcast::error::RecvError::Closed) => {
+                return Err(DeviceError::Gone { device: id });
+            }
+        };
+        let clock = self.world.clock();
+        let start = pulse.rig_time_s;
+        let end = start + self.exposure_s;
+        self.world.begin_exposure(start, end);
+        clock.sleep_s(end - clock.now_s()).await;
+        let snapshot = self.world.snapshot_at(start);
+        let rendered = self
+            .world
+            .renderer()
+            .render(
+                &snapshot,
+                &id,
+                self.exposure_s,
+                self.gain,
+                self.noise_seed(pulse.trigger_id),
+            )
+            .map_err(|e| DeviceError::Other {
+                device: id.clone(),
+                message: e.to_string(),
+            })?;
+        clock
+            .sleep_s(end + self.spec.readout_s() - clock.now_s())
+            .await;
+        Ok(Frame {
+            camera: id,
+            trigger_id: pulse.trigger_id,
+            width: self.spec.width,
+            height: self.spec.height,
+            bit_depth: self.spec.bit_depth,
+            pixels: rendered.pixels,
+            exposure_s: self.exposure_s,
+            gain: self.gain,
+            rig_time_s: start,
+            notes: rendered.notes,
+        })
+    }
+}

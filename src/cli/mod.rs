@@ -1,0 +1,246 @@
+//! Command-line interface. Exit codes: 0 done, 1 failed or aborted, 2 bad input.
+
+mod operator;
+mod progress;
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use clap::{Parser, Subcommand};
+use tokio::sync::broadcast;
+
+use crate::dry_run::render_report;
+use crate::executor::{AutoConfirm, Operator, RunControl, Summary};
+use crate::rig::RigSource;
+use crate::script::{ScriptSource, parse_set};
+use crate::session::{self, DEFAULT_RESERVE_BYTES, SessionError, Wiring};
+
+/// stagehand: runs capture scripts on an appearance-capture light stage (or its simulation).
+#[derive(Parser, Debug)]
+#[command(name = "stagehand", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Run a capture script and write a dataset.
+    Run {
+        /// Capture script (.rhai).
+        script: PathBuf,
+        /// Rig: `lightstage` (default, simulated), `reflectometer` (simulated) or a rig TOML file.
+        #[arg(long)]
+        rig: Option<String>,
+        /// Directory that receives the run directory.
+        #[arg(long, default_value = "runs")]
+        out: PathBuf,
+        /// Seed of the simulated sensor noise.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Override a script parameter: NAME=VALUE (repeatable).
+        #[arg(long = "set", value_name = "NAME=VALUE")]
+        set: Vec<String>,
+        /// Confirm every operator prompt automatically.
+        #[arg(long, short = 'y')]
+        yes: bool,
+        /// Free space to keep on the dataset's disk, in MiB.
+        #[arg(long, default_value_t = DEFAULT_RESERVE_BYTES >> 20)]
+        reserve_mib: u64,
+    },
+    /// Dry run: build and check the plan, estimate time, frames and bytes. Nothing moves.
+    Plan {
+        script: PathBuf,
+        #[arg(long)]
+        rig: Option<String>,
+        #[arg(long = "set", value_name = "NAME=VALUE")]
+        set: Vec<String>,
+        /// Print the plan as JSON instead of the report.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Finish an interrupted run (after a crash, kill, abort or full disk).
+    Resume {
+        run_dir: PathBuf,
+        #[arg(long, short = 'y')]
+        yes: bool,
+        #[arg(long, default_value_t = DEFAULT_RESERVE_BYTES >> 20)]
+        reserve_mib: u64,
+    },
+}
+
+/// Runs the CLI and returns the process exit code.
+pub fn main() -> i32 {
+    let cli = match Cli::try_parse() {
+        Ok(c) => c,
+        Err(e) => {
+            let code = if e.use_stderr() { 2 } else { 0 };
+            let _ = e.print();
+            return code;
+        }
+    };
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_env("STAGEHAND_LOG")
+                .unwrap_or_else(|_| "warn".into()),
+        )
+        .with_writer(std::io::stderr)
+        .try_init();
+    match dispatch(cli.command) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e}");
+            e.exit_code()
+        }
+    }
+}
+
+fn overrides(set: &[String]) -> Result<Vec<(String, String)>, SessionError> {
+    set.iter()
+        .map(|s| parse_set(s).map_err(SessionError::from))
+        .collect()
+}
+
+fn dispatch(command: Command) -> Result<i32, SessionError> {
+    match command {
+        Command::Plan {
+            script,
+            rig,
+            set,
+            json,
+        } => {
+            let rig = RigSource::load(rig.as_deref())?;
+            let script = ScriptSource::from_file(&script)?;
+            let plan = crate::script::build_plan(&script, &overrides(&set)?, &rig.spec)?;
+            let violations = crate::validate::validate(&plan, &rig.spec);
+            let estimate = crate::estimate::estimate(&plan, &rig.spec);
+            if json {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&plan)
+                        .map_err(|e| SessionError::Io(e.to_string()))?
+                );
+            } else {
+                print!(
+                    "{}",
+                    render_report(&script.name, &plan, &estimate, &violations)
+                );
+            }
+            let bad = violations
+                .iter()
+                .any(|v| v.severity == crate::validate::Severity::Error);
+            Ok(if bad { 2 } else { 0 })
+        }
+        Command::Run {
+            script,
+            rig,
+            out,
+            seed,
+            set,
+            yes,
+            reserve_mib,
+        } => {
+            let rig = RigSource::load(rig.as_deref())?;
+            let script = ScriptSource::from_file(&script)?;
+            let prepared = session::prepare(script, &overrides(&set)?, rig)?;
+            for w in &prepared.warnings {
+                eprintln!(
+                    "{}",
+                    session::format_violations(&prepared.script.name, std::slice::from_ref(w))
+                );
+            }
+            let runtime =
+                session::runtime_for(&prepared.rig).map_err(|e| SessionError::Io(e.to_string()))?;
+            let store = session::create_run(&prepared, &out, seed)?;
+            let dir = store.dir().to_path_buf();
+            eprintln!("run directory: {}", dir.display());
+            let estimate = prepared.estimate.rig_time_s;
+            let result = runtime.block_on(async move {
+                let (wiring, ui) = wire(yes, reserve_mib);
+                let r = match session::open_rig(&prepared.rig, seed) {
+                    Ok(rig) => session::run(prepared, store, rig, wiring).await,
+                    Err(e) => Err(e),
+                };
+                ui.finish().await;
+                r
+            });
+            report(&dir, estimate, result)
+        }
+        Command::Resume {
+            run_dir,
+            yes,
+            reserve_mib,
+        } => {
+            let reopened = session::reopen(&run_dir)?;
+            let runtime =
+                session::runtime_for(&reopened.rig).map_err(|e| SessionError::Io(e.to_string()))?;
+            let estimate = crate::estimate::estimate(&reopened.plan, &reopened.rig.spec).rig_time_s;
+            eprintln!("resuming {}", run_dir.display());
+            let result = runtime.block_on(async move {
+                let (wiring, ui) = wire(yes, reserve_mib);
+                let r = session::resume(reopened, wiring).await;
+                ui.finish().await;
+                r
+            });
+            report(&run_dir, estimate, result)
+        }
+    }
+}
+
+/// Progress display, Ctrl-C handling and the operator for one run.
+fn wire(yes: bool, reserve_mib: u64) -> (Wiring, progress::Progress) {
+    let (events, _) = broadcast::channel(1024);
+    let control = RunControl::new();
+    let ui = progress::Progress::start(events.subscribe());
+    let operator: Arc<dyn Operator> = if yes {
+        Arc::new(AutoConfirm)
+    } else {
+        Arc::new(operator::TerminalOperator::new(ui.bar()))
+    };
+    let abort = control.clone();
+    tokio::spawn(async move {
+        if tokio::signal::ctrl_c().await.is_ok() {
+            eprintln!(
+                "\ninterrupt: aborting to the safe state (lamps and laser off, axes stopped)…"
+            );
+            abort.abort();
+        }
+    });
+    (
+        Wiring {
+            events,
+            control,
+            operator,
+            reserve_bytes: reserve_mib << 20,
+        },
+        ui,
+    )
+}
+
+fn report(
+    dir: &std::path::Path,
+    estimate_s: f64,
+    result: Result<Summary, SessionError>,
+) -> Result<i32, SessionError> {
+    let summary = result?;
+    println!("run {}: {}", summary.status, dir.display());
+    println!(
+        "  steps {}/{}, frames written {}, rig time {} (estimated {})",
+        summary.steps_done,
+        summary.steps_total,
+        summary.frames_written,
+        progress::hms(summary.rig_time_s),
+        progress::hms(estimate_s)
+    );
+    println!(
+        "  index: sqlite3 {}/index.sqlite 'SELECT camera, count(*) FROM frames GROUP BY camera'",
+        dir.display()
+    );
+    if !summary.safety_violations.is_empty() {
+        for v in &summary.safety_violations {
+            println!("  safety violation: {v}");
+        }
+        return Ok(1);
+    }
+    Ok(0)
+}

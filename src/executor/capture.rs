@@ -1,0 +1,186 @@
+//! One capture step: wait for lamp warm-up and pacing, then for each exposure of the bracket
+//! configure and arm every listed camera, fire one trigger, and collect exactly one frame per
+//! camera for that trigger id.
+
+use stagehand_devices::{DeviceError, Frame};
+
+use super::{Execution, Live, StepFailure, missing, try_all, wall_now};
+use crate::plan::{Action, Step};
+use crate::storage::{FrameKind, FrameMeta};
+
+/// Largest bracket a capture may have (trigger ids reserve 1000 per step).
+pub const MAX_BRACKET: usize = 999;
+
+/// Frames of one step, waiting to be written.
+#[derive(Default)]
+pub struct StepFrames {
+    /// Raw frames with their metadata.
+    pub frames: Vec<(FrameMeta, Frame)>,
+    /// HDR merges to make: metadata of the merged frame, indices into `frames`, black level.
+    pub hdr: Vec<(FrameMeta, Vec<usize>, f64)>,
+}
+
+/// The trigger id of exposure `exposure` of step `step`: unique in a run and the same in a
+/// resumed run as in an uninterrupted one.
+pub fn trigger_id(step: usize, exposure: usize) -> u64 {
+    (step as u64 + 1) * 1000 + exposure as u64
+}
+
+pub(super) async fn capture(
+    ex: &Execution,
+    step: &Step,
+    live: &mut Live,
+) -> Result<StepFrames, StepFailure> {
+    let Action::Capture {
+        exposures_s,
+        cameras,
+        gain,
+        hdr,
+        label,
+        min_interval_s,
+    } = &step.action
+    else {
+        return Ok(StepFrames::default());
+    };
+    let rig = &ex.rig;
+    if exposures_s.is_empty() || exposures_s.len() > MAX_BRACKET {
+        return Err(missing(
+            "trigger",
+            &format!(
+                "a capture needs 1..={MAX_BRACKET} exposures, got {}",
+                exposures_s.len()
+            ),
+        )
+        .into());
+    }
+    let handles = cameras
+        .iter()
+        .map(|id| {
+            rig.cameras
+                .get(id)
+                .ok_or_else(|| missing(id, "no such camera in this rig"))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let trigger = rig
+        .trigger
+        .as_ref()
+        .ok_or_else(|| missing("trigger", "this rig has no trigger source"))?;
+
+    // Lamp warm-up and sweep pacing.
+    let now = rig.clock.now_s();
+    let mut ready = now;
+    for (id, since) in &live.lamp_on_since {
+        let warm = rig.spec.lamp(id).map(|l| l.warmup_s).unwrap_or(0.0);
+        ready = ready.max(since + warm);
+    }
+    if let Some(last) = live.last_capture_s {
+        ready = ready.max(last + min_interval_s);
+    }
+    rig.clock.sleep_s(ready - now).await;
+    live.last_capture_s = Some(rig.clock.now_s());
+
+    let mut out = StepFrames::default();
+    try_all(handles.iter().map(|c| c.set_armed(true))).await?;
+    let result = async {
+        for (e, &exposure) in exposures_s.iter().enumerate() {
+            try_all(handles.iter().map(|c| c.configure(exposure, *gain))).await?;
+            let id = trigger_id(step.index, e);
+            trigger.fire(id).await?;
+            let frames = try_all(handles.iter().map(|c| c.frame_for(id, exposure))).await?;
+            for frame in frames {
+                let meta = metadata(ex, step, live, label, &frame, Some(e), vec![exposure]);
+                out.frames.push((meta, frame));
+            }
+        }
+        Ok::<(), DeviceError>(())
+    }
+    .await;
+    // Disarm whatever happened, so no stray trigger can produce an unaccounted frame.
+    let disarmed = try_all(handles.iter().map(|c| c.set_armed(false))).await;
+    result?;
+    disarmed?;
+
+    if *hdr && exposures_s.len() > 1 {
+        for cam in cameras {
+            let idx: Vec<usize> = out
+                .frames
+                .iter()
+                .enumerate()
+                .filter(|(_, (m, _))| &m.camera == cam)
+                .map(|(i, _)| i)
+                .collect();
+            let Some(&first) = idx.first() else { continue };
+            let (template, frame) = &out.frames[first];
+            let mut meta = template.clone();
+            meta.kind = FrameKind::Hdr;
+            meta.exposure_index = None;
+            meta.exposures_s = exposures_s.clone();
+            meta.exposure_s = exposures_s.iter().copied().fold(0.0, f64::max);
+            meta.bit_depth = 32;
+            meta.trigger_id = None;
+            let black = black_level(ex, &frame.camera);
+            out.hdr.push((meta, idx, black));
+        }
+    }
+    Ok(out)
+}
+
+fn black_level(ex: &Execution, camera: &str) -> f64 {
+    ex.rig
+        .world
+        .as_ref()
+        .map(|w| w.renderer().black_level_dn(camera))
+        .unwrap_or(0.0)
+}
+
+fn metadata(
+    ex: &Execution,
+    step: &Step,
+    live: &Live,
+    label: &str,
+    frame: &Frame,
+    e: Option<usize>,
+    exposures: Vec<f64>,
+) -> FrameMeta {
+    let rig = &ex.rig;
+    let axes_deg = rig
+        .axes
+        .iter()
+        .map(|(id, h)| (id.clone(), h.status().position_deg))
+        .collect();
+    let laser = rig.laser.as_ref().map(|l| l.status());
+    let tilt = rig
+        .spec
+        .laser
+        .as_ref()
+        .and_then(|l| rig.axes.get(&l.tilt_axis))
+        .map(|h| h.status().position_deg);
+    FrameMeta {
+        step: step.index,
+        block: step.block.clone(),
+        label: label.to_string(),
+        camera: frame.camera.clone(),
+        kind: FrameKind::Raw,
+        exposure_index: e,
+        exposure_s: frame.exposure_s,
+        exposures_s: exposures,
+        gain: frame.gain,
+        trigger_id: Some(frame.trigger_id),
+        axes_deg,
+        lamps_on: live.state.lamps_on.iter().cloned().collect(),
+        laser_armed: laser.map(|l| l.armed).unwrap_or(false),
+        laser_on: laser.map(|l| l.on).unwrap_or(false),
+        laser_colour_nm: laser.map(|l| l.fitted_nm).unwrap_or(0),
+        laser_tilt_deg: tilt,
+        laser_mount_deg: laser.map(|l| l.mount_elevation_deg),
+        fixture: live.state.fixture.clone(),
+        cart_mm: rig.cart.as_ref().map(|c| c.position_mm()),
+        rig_time_s: frame.rig_time_s,
+        wall_time_unix_s: wall_now(),
+        width: frame.width,
+        height: frame.height,
+        bit_depth: frame.bit_depth,
+        saturated_samples: frame.saturated_samples() as u64,
+        notes: frame.notes.clone(),
+    }
+}

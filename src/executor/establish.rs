@@ -1,0 +1,94 @@
+//! Bringing the rig into a known state: at the start of a run (home every axis) and on resume
+//! (home, then move, switch and fit everything as the plan had it before the first pending step).
+
+use std::collections::BTreeMap;
+
+use stagehand_devices::DeviceError;
+
+use super::{Live, missing, try_all};
+use crate::estimate::RigState;
+use crate::rig::Rig;
+
+/// Homes every axis, then re-creates `state` on the devices.
+pub(super) async fn establish(
+    rig: &Rig,
+    live: &mut Live,
+    state: &RigState,
+) -> Result<(), DeviceError> {
+    // Start from the safe state so nothing emits while axes home.
+    rig.safe_state().await?;
+    try_all(rig.axes.values().map(|a| a.home())).await?;
+    let moves: Vec<_> = state
+        .axes_deg
+        .iter()
+        .filter(|(_, deg)| **deg != 0.0)
+        .map(|(id, deg)| {
+            rig.axes
+                .get(id)
+                .map(|h| (h, *deg))
+                .ok_or_else(|| missing(id, "no such axis in this rig"))
+        })
+        .collect::<Result<_, _>>()?;
+    try_all(moves.iter().map(|(h, deg)| h.move_to(*deg))).await?;
+    if let Some(w) = &rig.world {
+        w.place_fixture(&state.fixture);
+    }
+    if let Some(l) = &rig.laser {
+        l.fitted(state.laser_fitted_nm, state.laser_mount_deg)
+            .await?;
+        if state.laser_armed {
+            l.arm().await?;
+        }
+        if state.laser_on {
+            l.on(state.laser_fitted_nm).await?;
+        }
+    }
+    if let Some(c) = &rig.cart {
+        if state.cart_mm != 0.0 {
+            c.move_to(state.cart_mm).await?;
+        }
+    }
+    let lamps: BTreeMap<String, bool> =
+        state.lamps_on.iter().map(|id| (id.clone(), true)).collect();
+    live.state = state.clone();
+    live.state.lamps_on.clear();
+    switch_lamps(rig, live, &lamps).await
+}
+
+/// Switches lamps by id (grouped per bank) and records switch-on times for the warm-up wait.
+pub(super) async fn switch_lamps(
+    rig: &Rig,
+    live: &mut Live,
+    states: &BTreeMap<String, bool>,
+) -> Result<(), DeviceError> {
+    let mut per_bank: BTreeMap<&str, Vec<(u32, bool)>> = BTreeMap::new();
+    for (id, on) in states {
+        let wiring = rig
+            .lamps
+            .get(id)
+            .ok_or_else(|| missing(id, "no such lamp in this rig"))?;
+        per_bank
+            .entry(wiring.bank.as_str())
+            .or_default()
+            .push((wiring.channel, *on));
+    }
+    for (bank, changes) in per_bank {
+        let handle = rig
+            .banks
+            .get(bank)
+            .ok_or_else(|| missing(bank, "no such switch bank in this rig"))?;
+        handle.set_many(&changes).await?;
+    }
+    let now = rig.clock.now_s();
+    for (id, on) in states {
+        if *on {
+            if live.state.lamps_on.insert(id.clone()) {
+                live.lamp_on_since.insert(id.clone(), now);
+            }
+        } else {
+            live.state.lamps_on.remove(id);
+            live.lamp_on_since.remove(id);
+        }
+    }
+    Ok(())
+}

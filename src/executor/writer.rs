@@ -1,0 +1,228 @@
+//! The writer thread: makes each step's frames durable (and merges HDR brackets) off the
+//! runtime, in step order, while the executor drives the next step. A step's journal row
+//! commits only after its files are fsynced and renamed; after the first failure nothing
+//! more is committed, so the dataset stays a clean prefix of the plan plus untouched steps.
+
+use std::sync::{Arc, Mutex};
+
+use tokio::sync::{broadcast, mpsc, oneshot};
+
+use super::RunError;
+use super::capture::StepFrames;
+use super::events::Event;
+use crate::storage::{FramePixels, FrameToWrite, RunStatus, RunStore, StepRecord, merge_bracket};
+
+/// What the writer did by the time the run finished.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FinishReport {
+    /// Steps durable in the dataset (including earlier sessions of a resumed run).
+    pub steps_done: usize,
+    /// Files written in this session.
+    pub frames_written: usize,
+}
+
+enum Msg {
+    Step(StepRecord, StepFrames),
+    Finish(
+        RunStatus,
+        Option<String>,
+        oneshot::Sender<Result<FinishReport, String>>,
+    ),
+}
+
+/// Handle to the writer thread of one run.
+pub struct WriterHandle {
+    tx: mpsc::Sender<Msg>,
+    failed: Arc<Mutex<Option<(usize, String)>>>,
+}
+
+/// Steps queued ahead of the disk before the executor waits (bounds memory).
+const QUEUE_STEPS: usize = 3;
+
+impl WriterHandle {
+    /// Starts the writer thread; it owns `store` until the run finishes. A step is refused
+    /// when the file system would keep fewer than `reserve_bytes` free after writing it.
+    pub fn spawn(
+        store: RunStore,
+        events: broadcast::Sender<Event>,
+        reserve_bytes: u64,
+    ) -> std::io::Result<WriterHandle> {
+        let (tx, rx) = mpsc::channel(QUEUE_STEPS);
+        let failed = Arc::new(Mutex::new(None));
+        let flag = failed.clone();
+        std::thread::Builder::new()
+            .name("stagehand-writer".into())
+            .spawn(move || writer_loop(store, rx, events, flag, reserve_bytes))?;
+        Ok(WriterHandle { tx, failed })
+    }
+
+    fn failure(&self) -> Option<(usize, String)> {
+        self.failed
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
+    }
+
+    /// Fails if an earlier step could not be written.
+    pub fn check(&self) -> Result<(), RunError> {
+        match self.failure() {
+            Some((step, message)) => Err(RunError::Storage { step, message }),
+            None => Ok(()),
+        }
+    }
+
+    /// Queues a finished step; waits only if the writer is `QUEUE_STEPS` steps behind.
+    pub async fn submit(&self, record: StepRecord, frames: StepFrames) -> Result<(), RunError> {
+        let step = record.step;
+        self.tx
+            .send(Msg::Step(record, frames))
+            .await
+            .map_err(|_| RunError::Storage {
+                step,
+                message: "the writer thread has stopped".into(),
+            })?;
+        self.check()
+    }
+
+    /// Waits until every queued step is durable, records the run's final status and stops
+    /// the writer.
+    pub async fn finish(
+        &self,
+        status: RunStatus,
+        message: Option<String>,
+    ) -> Result<FinishReport, RunError> {
+        let (tx, rx) = oneshot::channel();
+        let lost = || {
+            RunError::Other(
+                "the writer thread stopped before the run finished; run `stagehand resume`".into(),
+            )
+        };
+        self.tx
+            .send(Msg::Finish(status, message, tx))
+            .await
+            .map_err(|_| lost())?;
+        let report = rx.await.map_err(|_| lost())?.map_err(RunError::Other)?;
+        self.check()?;
+        Ok(report)
+    }
+}
+
+fn writer_loop(
+    mut store: RunStore,
+    mut rx: mpsc::Receiver<Msg>,
+    events: broadcast::Sender<Event>,
+    failed: Arc<Mutex<Option<(usize, String)>>>,
+    reserve_bytes: u64,
+) {
+    let mut frames_written = 0usize;
+    let mut first_failure: Option<(usize, String)> = None;
+    while let Some(msg) = rx.blocking_recv() {
+        match msg {
+            Msg::Step(record, frames) => {
+                if first_failure.is_some() {
+                    continue;
+                }
+                let step = record.step;
+                match write_step(&mut store, &record, frames, reserve_bytes) {
+                    Ok(n) => {
+                        frames_written += n;
+                        let _ = events.send(Event::StepDurable { step, files: n });
+                    }
+                    Err(message) => {
+                        tracing::error!("step {step}: {message}");
+                        first_failure = Some((step, message.clone()));
+                        *failed.lock().unwrap_or_else(|p| p.into_inner()) = Some((step, message));
+                    }
+                }
+            }
+            Msg::Finish(status, message, reply) => {
+                let (status, message) = match &first_failure {
+                    Some((step, m)) => (RunStatus::Failed, Some(format!("step {step}: {m}"))),
+                    None => (status, message),
+                };
+                let result = store
+                    .set_status(status, message.as_deref())
+                    .and_then(|()| store.done_steps())
+                    .map(|done| FinishReport {
+                        steps_done: done.len(),
+                        frames_written,
+                    })
+                    .map_err(|e| e.to_string());
+                // Release the run (and its lock) before reporting, so a resume can follow at once.
+                drop(store);
+                let _ = reply.send(result);
+                return;
+            }
+        }
+    }
+}
+
+/// Writes one step; returns the number of files written.
+fn write_step(
+    store: &mut RunStore,
+    record: &StepRecord,
+    frames: StepFrames,
+    reserve_bytes: u64,
+) -> Result<usize, String> {
+    let mut merged = Vec::with_capacity(frames.hdr.len());
+    for (meta, idx, black) in &frames.hdr {
+        let bracket: Vec<&stagehand_devices::Frame> = idx
+            .iter()
+            .filter_map(|&i| frames.frames.get(i).map(|(_, f)| f))
+            .collect();
+        let hdr = merge_bracket(&bracket, *black).map_err(|e| e.to_string())?;
+        let mut meta = meta.clone();
+        meta.saturated_samples = hdr.saturated_samples;
+        merged.push(FrameToWrite {
+            meta,
+            pixels: FramePixels::Hdr(hdr.pixels),
+        });
+    }
+    let mut out: Vec<FrameToWrite> = frames
+        .frames
+        .into_iter()
+        .map(|(meta, frame)| FrameToWrite {
+            meta,
+            pixels: FramePixels::Raw(frame.pixels),
+        })
+        .collect();
+    out.extend(merged);
+    let needed: u64 = out
+        .iter()
+        .map(|f| match &f.pixels {
+            FramePixels::Raw(p) => p.len() as u64 * 2,
+            FramePixels::Hdr(p) => p.len() as u64 * 4,
+        })
+        .sum();
+    if needed > 0 {
+        let free = store.available_bytes().map_err(|e| e.to_string())?;
+        if free < needed.saturating_add(reserve_bytes) {
+            return Err(format!(
+                "disk nearly full at {}: {} free, the step needs up to {} plus a reserve of {}; free some space, then `stagehand resume` the run",
+                store.dir().display(),
+                human_bytes(free),
+                human_bytes(needed),
+                human_bytes(reserve_bytes)
+            ));
+        }
+    }
+    let n = out.len();
+    store.commit_step(record, out).map_err(|e| e.to_string())?;
+    Ok(n)
+}
+
+/// Bytes in binary units for messages.
+pub fn human_bytes(b: u64) -> String {
+    const UNITS: [&str; 5] = ["B", "KiB", "MiB", "GiB", "TiB"];
+    let mut v = b as f64;
+    let mut u = 0;
+    while v >= 1024.0 && u < UNITS.len() - 1 {
+        v /= 1024.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{b} B")
+    } else {
+        format!("{v:.1} {}", UNITS[u])
+    }
+}

@@ -1,0 +1,271 @@
+//! A capture session from start to end: script → plan → validation → dataset → rig → executor,
+//! and resuming an interrupted run. The CLI, the tests and (later) the daemon share this.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use stagehand_devices::clock::RigClock;
+use tokio::sync::broadcast;
+
+use crate::estimate::{Estimate, estimate};
+use crate::executor::{Event, Execution, Operator, RunControl, RunError, Summary, WriterHandle};
+use crate::plan::Plan;
+use crate::rig::{Rig, RigSource};
+use crate::script::{ScriptError, ScriptSource, build_plan};
+use crate::storage::{Manifest, RunStatus, RunStore, StorageError};
+use crate::validate::{Severity, Violation, validate};
+
+/// Why a session could not start or finish. `exit_code` maps it for the CLI.
+#[derive(Debug, thiserror::Error)]
+pub enum SessionError {
+    #[error("{0}")]
+    Script(#[from] ScriptError),
+    #[error("{0}")]
+    Rig(#[from] stagehand_devices::rig::RigError),
+    #[error("the plan has {} error(s); nothing moved:\n{}", .0.iter().filter(|v| v.severity == Severity::Error).count(), format_violations(.1, .0))]
+    Invalid(Vec<Violation>, String),
+    #[error("{0}")]
+    Storage(#[from] crate::storage::StorageError),
+    #[error("{0}")]
+    Open(#[from] crate::rig::OpenError),
+    #[error("{0}")]
+    Run(#[from] RunError),
+    #[error("{0}")]
+    Io(String),
+}
+
+impl SessionError {
+    /// 2 for bad input (nothing was started), 1 for a run that failed or was aborted.
+    pub fn exit_code(&self) -> i32 {
+        match self {
+            SessionError::Script(_)
+            | SessionError::Rig(_)
+            | SessionError::Invalid(..)
+            | SessionError::Open(_) => 2,
+            SessionError::Storage(e) => match e {
+                StorageError::CreateRoot { .. }
+                | StorageError::CreateRunDir { .. }
+                | StorageError::NotARun { .. }
+                | StorageError::UnsupportedFormat { .. }
+                | StorageError::PlanHashMismatch { .. }
+                | StorageError::RunInUse { .. } => 2,
+                _ => 1,
+            },
+            _ => 1,
+        }
+    }
+}
+
+/// Formats violations as `SCRIPT:LINE:COL: error: message (step n)`.
+pub fn format_violations(script: &str, violations: &[Violation]) -> String {
+    violations
+        .iter()
+        .map(|v| {
+            let sev = if v.severity == Severity::Error {
+                "error"
+            } else {
+                "warning"
+            };
+            format!(
+                "{script}:{}:{}: {sev}: {} (step {})",
+                v.at.line, v.at.col, v.message, v.step
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// A checked plan with its estimate, ready to run.
+pub struct Prepared {
+    pub script: ScriptSource,
+    pub rig: RigSource,
+    pub plan: Plan,
+    pub estimate: Estimate,
+    /// Warnings only (errors stop `prepare`).
+    pub warnings: Vec<Violation>,
+}
+
+/// Builds, validates and estimates a plan. Nothing moves.
+pub fn prepare(
+    script: ScriptSource,
+    overrides: &[(String, String)],
+    rig: RigSource,
+) -> Result<Prepared, SessionError> {
+    let plan = build_plan(&script, overrides, &rig.spec)?;
+    let violations = validate(&plan, &rig.spec);
+    if violations.iter().any(|v| v.severity == Severity::Error) {
+        return Err(SessionError::Invalid(violations, script.name.clone()));
+    }
+    let estimate = estimate(&plan, &rig.spec);
+    Ok(Prepared {
+        script,
+        rig,
+        plan,
+        estimate,
+        warnings: violations,
+    })
+}
+
+/// Where a run's events, control and prompts go.
+pub struct Wiring {
+    pub events: broadcast::Sender<Event>,
+    pub control: RunControl,
+    pub operator: Arc<dyn Operator>,
+    /// Free space to keep on the dataset's file system; a step that would eat into it fails
+    /// cleanly (resumable) instead of filling the disk.
+    pub reserve_bytes: u64,
+}
+
+/// Default free-space reserve: 64 MiB.
+pub const DEFAULT_RESERVE_BYTES: u64 = 64 << 20;
+
+/// Creates the run directory; returns the store and its path (so callers can report it before
+/// anything moves).
+pub fn create_run(
+    prepared: &Prepared,
+    out_root: &Path,
+    seed: u64,
+) -> Result<RunStore, SessionError> {
+    let manifest = Manifest {
+        format_version: 1,
+        run_id: String::new(),
+        created_unix_s: crate::executor::wall_now(),
+        software_version: env!("CARGO_PKG_VERSION").to_string(),
+        script_name: prepared.script.name.clone(),
+        script_text: prepared.script.text.clone(),
+        plan_hash: prepared.plan.hash(),
+        params: prepared.plan.params.clone(),
+        rig_name: prepared.rig.spec.rig.name.clone(),
+        rig_toml: prepared.rig.text.clone(),
+        seed,
+        simulated: true,
+    };
+    Ok(RunStore::create(out_root, manifest, &prepared.plan)?)
+}
+
+/// Opens the rig's devices for a new run (inside the runtime from [`runtime_for`]).
+pub fn open_rig(rig: &RigSource, seed: u64) -> Result<Rig, SessionError> {
+    Ok(Rig::open(
+        rig.spec.clone(),
+        RigClock::starting_at(0.0),
+        seed,
+    )?)
+}
+
+/// Runs a prepared plan on `rig` into `store`. Must be called inside the runtime chosen by
+/// [`runtime_for`].
+pub async fn run(
+    prepared: Prepared,
+    store: RunStore,
+    rig: Rig,
+    wiring: Wiring,
+) -> Result<Summary, SessionError> {
+    execute(
+        rig,
+        Arc::new(prepared.plan),
+        prepared.script.name,
+        store,
+        std::collections::BTreeSet::new(),
+        wiring,
+    )
+    .await
+}
+
+/// What `resume` found in the run directory.
+pub struct Reopened {
+    pub store: RunStore,
+    pub manifest: Manifest,
+    pub plan: Plan,
+    pub rig: RigSource,
+}
+
+/// Opens an interrupted run (synchronously, before a runtime exists).
+pub fn reopen(run_dir: &Path) -> Result<Reopened, SessionError> {
+    let (store, manifest, plan) = RunStore::open(run_dir)?;
+    let origin = format!("{}/rig.toml", run_dir.display());
+    let rig = RigSource::from_text(&manifest.rig_toml, &origin)?;
+    Ok(Reopened {
+        store,
+        manifest,
+        plan,
+        rig,
+    })
+}
+
+/// Finishes an interrupted run: re-establishes the device state and runs the steps that are
+/// not durable yet. A finished run is left as it is.
+pub async fn resume(reopened: Reopened, wiring: Wiring) -> Result<Summary, SessionError> {
+    let Reopened {
+        store,
+        manifest,
+        plan,
+        rig,
+    } = reopened;
+    let done = store.done_steps()?;
+    let rig_time = store.last_rig_time_s()?;
+    store.set_status(RunStatus::Running, None)?;
+    let rig = Rig::open(rig.spec, RigClock::starting_at(rig_time), manifest.seed)?;
+    execute(
+        rig,
+        Arc::new(plan),
+        manifest.script_name,
+        store,
+        done,
+        wiring,
+    )
+    .await
+}
+
+async fn execute(
+    rig: Rig,
+    plan: Arc<Plan>,
+    script_name: String,
+    store: RunStore,
+    done: std::collections::BTreeSet<usize>,
+    wiring: Wiring,
+) -> Result<Summary, SessionError> {
+    let writer = WriterHandle::spawn(store, wiring.events.clone(), wiring.reserve_bytes)
+        .map_err(|e| SessionError::Io(format!("cannot start the writer thread: {e}")))?;
+    let exec = Execution {
+        rig,
+        plan,
+        script_name,
+        events: wiring.events,
+        control: wiring.control,
+        operator: wiring.operator,
+        writer,
+        done,
+    };
+    Ok(exec.run().await?)
+}
+
+/// The tokio runtime a rig needs: simulated rigs run on a single thread with paused time, so
+/// the virtual clock jumps to the next timer whenever every task waits; real rigs run in real
+/// time on a multi-threaded runtime.
+pub fn runtime_for(rig: &RigSource) -> std::io::Result<tokio::runtime::Runtime> {
+    let simulated = rig
+        .spec
+        .axes
+        .iter()
+        .all(|a| a.backend == stagehand_devices::rig::Backend::Sim)
+        && rig
+            .spec
+            .cameras
+            .iter()
+            .all(|c| c.backend == stagehand_devices::rig::Backend::Sim);
+    if simulated {
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .start_paused(true)
+            .build()
+    } else {
+        tokio::runtime::Builder::new_multi_thread()
+            .enable_all()
+            .build()
+    }
+}
+
+/// Path of a run directory for messages.
+pub fn run_dir(store: &RunStore) -> PathBuf {
+    store.dir().to_path_buf()
+}

@@ -1,0 +1,182 @@
+//! HDR frames as OpenEXR: one RGB layer of **f32** samples, ZIP compression (16 scan lines per
+//! block), the frame metadata JSON in a `stagehand` text attribute.
+//!
+//! Why f32 and not f16: radiance is in DN per second at gain 1, so a short exposure near full
+//! scale reaches 10⁶–10⁸ (65535 DN / 1 ms ≈ 6.6·10⁷), far beyond f16's maximum of 65504, and
+//! f16's 11-bit mantissa is coarser than a 12–16-bit sensor's DN step. Scaling into f16 range
+//! would need a per-file factor every reader must know about; f32 avoids that.
+
+use std::io::Cursor;
+
+use exr::image::read::image::ReadLayers;
+use exr::image::read::layers::ReadChannels;
+use exr::image::read::read;
+use exr::image::write::WritableImage;
+use exr::image::{Blocks, Encoding, Image, Layer, RgbChannels, SpecificChannels};
+use exr::math::Vec2;
+use exr::meta::attribute::{AttributeValue, LineOrder, Text};
+use exr::meta::header::LayerAttributes;
+
+use super::error::{Result, StorageError};
+use super::png16::rgb_samples;
+
+/// Name of the text attribute holding the frame metadata JSON.
+pub const ATTRIBUTE: &str = "stagehand";
+
+/// A decoded stagehand OpenEXR file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DecodedExr {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Interleaved RGB samples.
+    pub pixels: Vec<f32>,
+    /// Text of the `stagehand` attribute, if present.
+    pub metadata: Option<String>,
+}
+
+/// Encodes interleaved RGB f32 `pixels` as OpenEXR (f32, ZIP16, increasing scan lines) with
+/// `metadata_json` in the [`ATTRIBUTE`] text attribute. `name` is only used in errors.
+pub fn encode_exr(
+    name: &str,
+    width: u32,
+    height: u32,
+    pixels: &[f32],
+    metadata_json: &str,
+) -> Result<Vec<u8>> {
+    let samples = rgb_samples(name, width, height)?;
+    if pixels.len() != samples {
+        return Err(StorageError::InvalidFrame {
+            name: name.to_string(),
+            reason: format!(
+                "{} samples given, a {width}x{height} RGB image needs {samples}",
+                pixels.len()
+            ),
+        });
+    }
+    let w = width as usize;
+    let channels = SpecificChannels::rgb(|pos: Vec2<usize>| {
+        let i = (pos.y() * w + pos.x()) * 3;
+        (pixels[i], pixels[i + 1], pixels[i + 2])
+    });
+    let mut attributes = LayerAttributes {
+        software_name: Some(Text::from_slice_unchecked(b"stagehand")),
+        ..LayerAttributes::default()
+    };
+    attributes.other.insert(
+        Text::from_slice_unchecked(ATTRIBUTE.as_bytes()),
+        AttributeValue::Text(Text::from_slice_unchecked(metadata_json.as_bytes())),
+    );
+    let encoding = Encoding {
+        compression: exr::compression::Compression::ZIP16,
+        blocks: Blocks::ScanLines,
+        line_order: LineOrder::Increasing,
+    };
+    let layer = Layer::new((w, height as usize), attributes, encoding, channels);
+    let image = Image::from_layer(layer);
+    let mut out = Cursor::new(Vec::with_capacity(samples * 2));
+    image
+        .write()
+        .to_buffered(&mut out)
+        .map_err(|source| StorageError::Exr {
+            op: "encode",
+            name: name.to_string(),
+            source,
+        })?;
+    Ok(out.into_inner())
+}
+
+/// Pixel buffer used while decoding.
+struct Rgb {
+    width: usize,
+    pixels: Vec<f32>,
+}
+
+/// Decodes the first RGB layer of an OpenEXR file (any sample type, converted to f32).
+/// `name` is only used in errors.
+pub fn decode_exr(name: &str, bytes: &[u8]) -> Result<DecodedExr> {
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .rgb_channels(
+            |size: Vec2<usize>, _: &RgbChannels| Rgb {
+                width: size.width(),
+                pixels: vec![0.0; size.width() * size.height() * 3],
+            },
+            |rgb: &mut Rgb, pos: Vec2<usize>, (r, g, b): (f32, f32, f32)| {
+                let i = (pos.y() * rgb.width + pos.x()) * 3;
+                rgb.pixels[i..i + 3].copy_from_slice(&[r, g, b]);
+            },
+        )
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(Cursor::new(bytes))
+        .map_err(|source| StorageError::Exr {
+            op: "decode",
+            name: name.to_string(),
+            source,
+        })?;
+    let layer = image.layer_data;
+    let size = layer.size;
+    let metadata = match layer
+        .attributes
+        .other
+        .get(&Text::from_slice_unchecked(ATTRIBUTE.as_bytes()))
+    {
+        Some(AttributeValue::Text(text)) => {
+            Some(String::from_utf8_lossy(text.as_slice()).into_owned())
+        }
+        _ => None,
+    };
+    let too_big = || StorageError::InvalidFrame {
+        name: name.to_string(),
+        reason: format!(
+            "image size {}x{} does not fit in u32",
+            size.width(),
+            size.height()
+        ),
+    };
+    Ok(DecodedExr {
+        width: u32::try_from(size.width()).map_err(|_| too_big())?,
+        height: u32::try_from(size.height()).map_err(|_| too_big())?,
+        pixels: layer.channel_data.pixels.pixels,
+        metadata,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip_is_exact() -> Result<()> {
+        let (w, h) = (33u32, 21u32);
+        let pixels: Vec<f32> = (0..(w * h * 3))
+            .map(|i| match i % 5 {
+                0 => 0.0,
+                1 => 1.0e8 + i as f32,
+                2 => 1.0e-6 * i as f32,
+                3 => 0.1 * i as f32,
+                _ => 12345.678,
+            })
+            .collect();
+        let json = r#"{"camera":"cam2","kind":"hdr","note":"ü"}"#;
+        let bytes = encode_exr("t.exr", w, h, &pixels, json)?;
+        let back = decode_exr("t.exr", &bytes)?;
+        assert_eq!((back.width, back.height), (w, h));
+        assert_eq!(back.pixels, pixels);
+        assert_eq!(back.metadata.as_deref(), Some(json));
+        // deterministic bytes despite parallel compression
+        assert_eq!(encode_exr("t.exr", w, h, &pixels, json)?, bytes);
+        Ok(())
+    }
+
+    #[test]
+    fn wrong_sample_count_is_an_error() {
+        assert!(matches!(
+            encode_exr("bad.exr", 2, 2, &[0.0; 3], "{}"),
+            Err(StorageError::InvalidFrame { .. })
+        ));
+    }
+}

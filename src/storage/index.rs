@@ -1,0 +1,593 @@
+//! The SQLite index of a run (`index.sqlite`): the run row, the step journal and one row per
+//! frame with every per-frame fact. WAL mode, `synchronous=FULL` (a commit is durable when it
+//! returns, which invariant 4 relies on).
+//!
+//! JSON columns (`manifest`, `axes_deg`, `lamps_on`, `exposures_s`, `notes`) are queried with
+//! SQLite's built-in JSON functions, e.g. all frames of lamp `lamp3` seen by camera `cam5`:
+//! ```sql
+//! SELECT frames.path FROM frames, json_each(frames.lamps_on) j
+//!  WHERE camera='cam5' AND j.value='lamp3';
+//! ```
+//! `json_each` has columns of its own named `path`, `id`, `key`, `value`, `type`, `atom`,
+//! `parent` and `fullkey`, so `path` and `id` must be qualified (`frames.path`) in such a join;
+//! the unqualified `SELECT path …` is rejected by SQLite as ambiguous. The view `frame_lamps`
+//! (every frame column plus `lamp`, one row per lamp that was on) avoids the join:
+//! `SELECT path FROM frame_lamps WHERE camera='cam5' AND lamp='lamp3'`.
+//! Frames with the turntable at 90°: `WHERE json_extract(axes_deg, '$.turntable') = 90`.
+
+use std::path::{Path, PathBuf};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use rusqlite::{Connection, OpenFlags, OptionalExtension, Transaction, params};
+use serde::{Deserialize, Serialize};
+
+use super::error::{Result, StorageError};
+use super::frame_meta::{FrameKind, FrameMeta};
+use super::manifest::Manifest;
+use crate::plan::Plan;
+
+/// Schema version, stored in `PRAGMA user_version`.
+pub const SCHEMA_VERSION: i32 = 1;
+
+/// The schema. Every table is `STRICT`, so a wrongly typed value is an error, not a surprise.
+pub const SCHEMA: &str = "
+CREATE TABLE runs (
+    id              TEXT PRIMARY KEY,
+    status          TEXT NOT NULL CHECK (status IN ('running', 'done', 'failed', 'aborted')),
+    message         TEXT,
+    manifest        TEXT NOT NULL,            -- Manifest as JSON
+    created_unix_s  REAL NOT NULL,
+    updated_unix_s  REAL NOT NULL
+) STRICT;
+CREATE TABLE steps (
+    idx               INTEGER PRIMARY KEY,    -- Plan step index
+    kind              TEXT NOT NULL,          -- Action::kind()
+    block             TEXT NOT NULL,
+    script_line       INTEGER NOT NULL,
+    script_col        INTEGER NOT NULL,
+    status            TEXT NOT NULL DEFAULT 'pending' CHECK (status IN ('pending', 'done')),
+    rig_time_start_s  REAL,
+    rig_time_end_s    REAL,
+    wall_time_unix_s  REAL                    -- when the step committed
+) STRICT;
+CREATE TABLE frames (
+    id                 INTEGER PRIMARY KEY,
+    step               INTEGER NOT NULL REFERENCES steps(idx),
+    path               TEXT NOT NULL UNIQUE,  -- relative to the run directory
+    sha256             TEXT NOT NULL,         -- of the file's bytes, hex
+    size_bytes         INTEGER NOT NULL,
+    camera             TEXT NOT NULL,
+    kind               TEXT NOT NULL CHECK (kind IN ('raw', 'hdr')),
+    label              TEXT NOT NULL,
+    block              TEXT NOT NULL,
+    exposure_index     INTEGER,
+    exposure_s         REAL NOT NULL,
+    exposures_s        TEXT NOT NULL,         -- JSON array
+    gain               REAL NOT NULL,
+    trigger_id         INTEGER,
+    axes_deg           TEXT NOT NULL,         -- JSON object axis -> degrees
+    lamps_on           TEXT NOT NULL,         -- JSON array of lamp ids
+    laser_armed        INTEGER NOT NULL,
+    laser_on           INTEGER NOT NULL,
+    laser_colour_nm    INTEGER NOT NULL,
+    laser_tilt_deg     REAL,
+    laser_mount_deg    REAL,
+    fixture            TEXT NOT NULL,
+    cart_mm            REAL,
+    rig_time_s         REAL NOT NULL,
+    wall_time_unix_s   REAL NOT NULL,
+    width              INTEGER NOT NULL,
+    height             INTEGER NOT NULL,
+    bit_depth          INTEGER NOT NULL,
+    saturated_samples  INTEGER NOT NULL,
+    notes              TEXT NOT NULL          -- JSON
+) STRICT;
+CREATE INDEX frames_camera ON frames(camera);
+CREATE INDEX frames_step ON frames(step);
+CREATE VIEW frame_lamps AS
+    SELECT frames.*, j.value AS lamp FROM frames, json_each(frames.lamps_on) AS j;
+";
+
+/// State of a run, stored as text (`running`, `done`, `failed`, `aborted`) in `runs.status`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RunStatus {
+    /// Created or resumed, steps are executing (or the process died while they were).
+    Running,
+    /// Every step is done.
+    Done,
+    /// Stopped by an error.
+    Failed,
+    /// Stopped by the operator.
+    Aborted,
+}
+
+impl RunStatus {
+    /// The text stored in SQLite.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            RunStatus::Running => "running",
+            RunStatus::Done => "done",
+            RunStatus::Failed => "failed",
+            RunStatus::Aborted => "aborted",
+        }
+    }
+
+    /// Parses [`RunStatus::as_str`] output.
+    pub fn parse(text: &str) -> Option<RunStatus> {
+        match text {
+            "running" => Some(RunStatus::Running),
+            "done" => Some(RunStatus::Done),
+            "failed" => Some(RunStatus::Failed),
+            "aborted" => Some(RunStatus::Aborted),
+            _ => None,
+        }
+    }
+}
+
+/// The journal entry of a finished step.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StepRecord {
+    /// Plan step index.
+    pub step: usize,
+    /// Action kind ([`crate::plan::Action::kind`]).
+    pub kind: String,
+    /// Enclosing block names joined with `/`.
+    pub block: String,
+    /// Rig time in seconds when the step started.
+    pub rig_time_start_s: f64,
+    /// Rig time in seconds when the step ended.
+    pub rig_time_end_s: f64,
+    /// Wall-clock Unix time in seconds when the step ended.
+    pub wall_time_unix_s: f64,
+}
+
+/// A frame row of the index.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StoredFrame {
+    /// Path relative to the run directory (`frames/…`).
+    pub path: String,
+    /// Hex SHA-256 of the file.
+    pub sha256: String,
+    /// File size in bytes.
+    pub size_bytes: u64,
+    /// Every per-frame fact.
+    pub meta: FrameMeta,
+}
+
+/// A frame row about to be inserted.
+pub(crate) struct NewFrameRow<'a> {
+    pub path: String,
+    pub sha256: String,
+    pub size_bytes: u64,
+    pub meta: &'a FrameMeta,
+}
+
+/// Current Unix time in seconds (0 if the clock is before 1970).
+pub(crate) fn now_unix_s() -> f64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_secs_f64())
+        .unwrap_or(0.0)
+}
+
+/// The index database of one run.
+pub(crate) struct Index {
+    conn: Connection,
+    path: PathBuf,
+}
+
+impl Index {
+    fn err(&self, what: &'static str) -> impl Fn(rusqlite::Error) -> StorageError + '_ {
+        sql_err(&self.path, what)
+    }
+
+    fn json_err(&self, column: &str) -> impl Fn(serde_json::Error) -> StorageError + '_ {
+        let path = self.path.join(column);
+        move |source| StorageError::Json {
+            op: "encode/decode",
+            path: path.clone(),
+            source,
+        }
+    }
+
+    /// Opens (or, with `create`, creates) the database and sets the durability pragmas.
+    fn connect(path: &Path, create: bool) -> Result<Index> {
+        let mut flags = OpenFlags::SQLITE_OPEN_READ_WRITE | OpenFlags::SQLITE_OPEN_NO_MUTEX;
+        if create {
+            flags |= OpenFlags::SQLITE_OPEN_CREATE;
+        }
+        let sqlite = |what| sql_err(path, what);
+        let conn = Connection::open_with_flags(path, flags).map_err(sqlite("open"))?;
+        conn.busy_timeout(std::time::Duration::from_secs(10))
+            .map_err(sqlite("set busy timeout"))?;
+        let mode: String = conn
+            .pragma_update_and_check(None, "journal_mode", "WAL", |row| row.get(0))
+            .map_err(sqlite("enable WAL"))?;
+        if !mode.eq_ignore_ascii_case("wal") {
+            tracing::warn!(path = %path.display(), mode, "SQLite refused WAL mode");
+        }
+        conn.execute_batch("PRAGMA synchronous = FULL; PRAGMA foreign_keys = ON;")
+            .map_err(sqlite("set pragmas"))?;
+        Ok(Index {
+            conn,
+            path: path.to_path_buf(),
+        })
+    }
+
+    /// Creates a new index with the run row (status running) and one pending row per step.
+    pub(crate) fn create(path: &Path, manifest: &Manifest, plan: &Plan) -> Result<Index> {
+        let mut index = Index::connect(path, true)?;
+        let manifest_json =
+            serde_json::to_string(manifest).map_err(index.json_err("runs.manifest"))?;
+        let now = now_unix_s();
+        let path = index.path.clone();
+        let sqlite = |what| sql_err(&path, what);
+        let tx = index
+            .conn
+            .transaction()
+            .map_err(sqlite("begin transaction"))?;
+        tx.execute_batch(SCHEMA).map_err(sqlite("create schema"))?;
+        tx.pragma_update(None, "user_version", SCHEMA_VERSION)
+            .map_err(sqlite("set schema version"))?;
+        tx.execute(
+            "INSERT INTO runs (id, status, message, manifest, created_unix_s, updated_unix_s)
+             VALUES (?1, 'running', NULL, ?2, ?3, ?4)",
+            params![manifest.run_id, manifest_json, manifest.created_unix_s, now],
+        )
+        .map_err(sqlite("insert run row"))?;
+        {
+            let mut insert = tx
+                .prepare(
+                    "INSERT INTO steps (idx, kind, block, script_line, script_col)
+                     VALUES (?1, ?2, ?3, ?4, ?5)",
+                )
+                .map_err(sqlite("prepare step insert"))?;
+            for (i, step) in plan.steps.iter().enumerate() {
+                // The journal is keyed by position in the plan, which is what resume iterates.
+                insert
+                    .execute(params![
+                        to_i64(i),
+                        step.action.kind(),
+                        step.block,
+                        step.at.line,
+                        step.at.col
+                    ])
+                    .map_err(sqlite("insert step rows"))?;
+            }
+        }
+        tx.commit().map_err(sqlite("commit run creation"))?;
+        Ok(index)
+    }
+
+    /// Opens the index of an existing run and checks its schema version.
+    pub(crate) fn open(path: &Path) -> Result<Index> {
+        let index = Index::connect(path, false)?;
+        let version: i32 = index
+            .conn
+            .query_row("PRAGMA user_version", [], |row| row.get(0))
+            .map_err(index.err("read schema version"))?;
+        if version != SCHEMA_VERSION {
+            return Err(StorageError::CorruptIndex {
+                path: index.path.clone(),
+                reason: format!("schema version {version}, this build reads {SCHEMA_VERSION}"),
+            });
+        }
+        Ok(index)
+    }
+
+    /// The run id recorded in the `runs` table.
+    pub(crate) fn run_id(&self) -> Result<String> {
+        self.conn
+            .query_row("SELECT id FROM runs", [], |row| row.get(0))
+            .optional()
+            .map_err(self.err("read run row"))?
+            .ok_or_else(|| StorageError::CorruptIndex {
+                path: self.path.clone(),
+                reason: "the runs table is empty".into(),
+            })
+    }
+
+    /// Indices of the steps marked done.
+    pub(crate) fn done_steps(&self) -> Result<std::collections::BTreeSet<usize>> {
+        let mut stmt = self
+            .conn
+            .prepare_cached("SELECT idx FROM steps WHERE status = 'done' ORDER BY idx")
+            .map_err(self.err("query done steps"))?;
+        let rows = stmt
+            .query_map([], |row| get_usize(row, 0))
+            .map_err(self.err("query done steps"))?;
+        rows.collect::<rusqlite::Result<_>>()
+            .map_err(self.err("read done steps"))
+    }
+
+    /// Latest rig time reached by a committed step (0 if none).
+    pub(crate) fn last_rig_time_s(&self) -> Result<f64> {
+        let t: Option<f64> = self
+            .conn
+            .query_row(
+                "SELECT MAX(rig_time_end_s) FROM steps WHERE status = 'done'",
+                [],
+                |row| row.get(0),
+            )
+            .map_err(self.err("query last rig time"))?;
+        Ok(t.unwrap_or(0.0))
+    }
+
+    /// Sets the run status and message.
+    pub(crate) fn set_status(&self, status: RunStatus, message: Option<&str>) -> Result<()> {
+        self.conn
+            .execute(
+                "UPDATE runs SET status = ?1, message = ?2, updated_unix_s = ?3",
+                params![status.as_str(), message, now_unix_s()],
+            )
+            .map_err(self.err("update run status"))?;
+        Ok(())
+    }
+
+    /// The run status and message.
+    pub(crate) fn status(&self) -> Result<(RunStatus, Option<String>)> {
+        let (text, message): (String, Option<String>) = self
+            .conn
+            .query_row("SELECT status, message FROM runs", [], |row| {
+                Ok((row.get(0)?, row.get(1)?))
+            })
+            .map_err(self.err("read run status"))?;
+        let status = RunStatus::parse(&text).ok_or_else(|| StorageError::CorruptIndex {
+            path: self.path.clone(),
+            reason: format!("unknown run status {text:?}"),
+        })?;
+        Ok((status, message))
+    }
+
+    /// In one transaction: replaces the step's frame rows with `rows` and marks it done.
+    pub(crate) fn commit_step(
+        &mut self,
+        record: &StepRecord,
+        rows: &[NewFrameRow<'_>],
+    ) -> Result<()> {
+        let mut encoded = Vec::with_capacity(rows.len());
+        for row in rows {
+            let m = row.meta;
+            let json = |v: serde_json::Result<String>| v.map_err(self.json_err("frames"));
+            encoded.push((
+                json(serde_json::to_string(&m.exposures_s))?,
+                json(serde_json::to_string(&m.axes_deg))?,
+                json(serde_json::to_string(&m.lamps_on))?,
+                json(serde_json::to_string(&m.notes))?,
+            ));
+        }
+        let path = self.path.clone();
+        let sqlite = |what| sql_err(&path, what);
+        let step = to_i64(record.step);
+        let tx: Transaction<'_> = self
+            .conn
+            .transaction()
+            .map_err(sqlite("begin step commit"))?;
+        let kind: Option<String> = tx
+            .query_row("SELECT kind FROM steps WHERE idx = ?1", [step], |row| {
+                row.get(0)
+            })
+            .optional()
+            .map_err(sqlite("read step row"))?;
+        match kind {
+            None => {
+                return Err(StorageError::InvalidCommit {
+                    step: record.step,
+                    run: self.path.clone(),
+                    reason: "the plan has no such step".into(),
+                });
+            }
+            Some(kind) if kind != record.kind => {
+                tracing::warn!(
+                    step = record.step,
+                    planned = kind,
+                    recorded = record.kind,
+                    "step kind differs from the plan"
+                );
+            }
+            Some(_) => {}
+        }
+        tx.execute("DELETE FROM frames WHERE step = ?1", [step])
+            .map_err(sqlite("delete old frame rows"))?;
+        {
+            let mut insert = tx
+                .prepare_cached(
+                    "INSERT OR REPLACE INTO frames (
+                        step, path, sha256, size_bytes, camera, kind, label, block,
+                        exposure_index, exposure_s, exposures_s, gain, trigger_id, axes_deg,
+                        lamps_on, laser_armed, laser_on, laser_colour_nm, laser_tilt_deg,
+                        laser_mount_deg, fixture, cart_mm, rig_time_s, wall_time_unix_s, width,
+                        height, bit_depth, saturated_samples, notes)
+                     VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15,
+                        ?16, ?17, ?18, ?19, ?20, ?21, ?22, ?23, ?24, ?25, ?26, ?27, ?28, ?29)",
+                )
+                .map_err(sqlite("prepare frame insert"))?;
+            for (row, (exposures, axes, lamps, notes)) in rows.iter().zip(&encoded) {
+                let m = row.meta;
+                let too_big = |what: &str| StorageError::InvalidFrame {
+                    name: row.path.clone(),
+                    reason: format!("{what} does not fit in SQLite's 63-bit integers"),
+                };
+                let trigger = m
+                    .trigger_id
+                    .map(|t| i64::try_from(t).map_err(|_| too_big("trigger id")))
+                    .transpose()?;
+                let saturated =
+                    i64::try_from(m.saturated_samples).map_err(|_| too_big("saturated_samples"))?;
+                let size = i64::try_from(row.size_bytes).map_err(|_| too_big("file size"))?;
+                insert
+                    .execute(params![
+                        step,
+                        row.path,
+                        row.sha256,
+                        size,
+                        m.camera,
+                        m.kind.as_str(),
+                        m.label,
+                        m.block,
+                        m.exposure_index.map(to_i64),
+                        m.exposure_s,
+                        exposures,
+                        m.gain,
+                        trigger,
+                        axes,
+                        lamps,
+                        m.laser_armed,
+                        m.laser_on,
+                        m.laser_colour_nm,
+                        m.laser_tilt_deg,
+                        m.laser_mount_deg,
+                        m.fixture,
+                        m.cart_mm,
+                        m.rig_time_s,
+                        m.wall_time_unix_s,
+                        m.width,
+                        m.height,
+                        m.bit_depth,
+                        saturated,
+                        notes,
+                    ])
+                    .map_err(sqlite("insert frame row"))?;
+            }
+        }
+        tx.execute(
+            "UPDATE steps SET status = 'done', kind = ?2, block = ?3, rig_time_start_s = ?4,
+                rig_time_end_s = ?5, wall_time_unix_s = ?6 WHERE idx = ?1",
+            params![
+                step,
+                record.kind,
+                record.block,
+                record.rig_time_start_s,
+                record.rig_time_end_s,
+                record.wall_time_unix_s
+            ],
+        )
+        .map_err(sqlite("mark step done"))?;
+        tx.execute("UPDATE runs SET updated_unix_s = ?1", [now_unix_s()])
+            .map_err(sqlite("touch run row"))?;
+        tx.commit().map_err(sqlite("commit step"))
+    }
+
+    /// Frame rows, of one step or all, ordered by step and path.
+    pub(crate) fn frames(&self, step: Option<usize>) -> Result<Vec<StoredFrame>> {
+        let mut stmt = self
+            .conn
+            .prepare_cached(
+                "SELECT path, sha256, size_bytes, step, block, label, camera, kind, exposure_index,
+                    exposure_s, exposures_s, gain, trigger_id, axes_deg, lamps_on, laser_armed,
+                    laser_on, laser_colour_nm, laser_tilt_deg, laser_mount_deg, fixture, cart_mm,
+                    rig_time_s, wall_time_unix_s, width, height, bit_depth, saturated_samples, notes
+                 FROM frames WHERE ?1 IS NULL OR step = ?1 ORDER BY step, path",
+            )
+            .map_err(self.err("query frames"))?;
+        type Raw = (StoredFrame, String, String, String, String, String);
+        let rows = stmt
+            .query_map([step.map(to_i64)], |r| -> rusqlite::Result<Raw> {
+                let meta = FrameMeta {
+                    step: get_usize(r, 3)?,
+                    block: r.get(4)?,
+                    label: r.get(5)?,
+                    camera: r.get(6)?,
+                    kind: FrameKind::Raw,
+                    exposure_index: r
+                        .get::<_, Option<i64>>(8)?
+                        .map(|v| to_usize(8, v))
+                        .transpose()?,
+                    exposure_s: r.get(9)?,
+                    exposures_s: Vec::new(),
+                    gain: r.get(11)?,
+                    trigger_id: r
+                        .get::<_, Option<i64>>(12)?
+                        .map(|v| to_u64(12, v))
+                        .transpose()?,
+                    axes_deg: Default::default(),
+                    lamps_on: Vec::new(),
+                    laser_armed: r.get(15)?,
+                    laser_on: r.get(16)?,
+                    laser_colour_nm: r.get(17)?,
+                    laser_tilt_deg: r.get(18)?,
+                    laser_mount_deg: r.get(19)?,
+                    fixture: r.get(20)?,
+                    cart_mm: r.get(21)?,
+                    rig_time_s: r.get(22)?,
+                    wall_time_unix_s: r.get(23)?,
+                    width: r.get(24)?,
+                    height: r.get(25)?,
+                    bit_depth: r.get(26)?,
+                    saturated_samples: to_u64(27, r.get(27)?)?,
+                    notes: serde_json::Value::Null,
+                };
+                let frame = StoredFrame {
+                    path: r.get(0)?,
+                    sha256: r.get(1)?,
+                    size_bytes: to_u64(2, r.get(2)?)?,
+                    meta,
+                };
+                Ok((
+                    frame,
+                    r.get(7)?,
+                    r.get(10)?,
+                    r.get(13)?,
+                    r.get(14)?,
+                    r.get(28)?,
+                ))
+            })
+            .map_err(self.err("query frames"))?;
+        let mut out = Vec::new();
+        for row in rows {
+            let (mut frame, kind, exposures, axes, lamps, notes) =
+                row.map_err(self.err("read frame row"))?;
+            frame.meta.kind =
+                FrameKind::parse(&kind).ok_or_else(|| StorageError::CorruptIndex {
+                    path: self.path.clone(),
+                    reason: format!("frame {} has unknown kind {kind:?}", frame.path),
+                })?;
+            let decode = self.json_err("frames");
+            frame.meta.exposures_s = serde_json::from_str(&exposures).map_err(&decode)?;
+            frame.meta.axes_deg = serde_json::from_str(&axes).map_err(&decode)?;
+            frame.meta.lamps_on = serde_json::from_str(&lamps).map_err(&decode)?;
+            frame.meta.notes = serde_json::from_str(&notes).map_err(&decode)?;
+            out.push(frame);
+        }
+        Ok(out)
+    }
+
+    /// The underlying connection, for ad-hoc queries in tests.
+    #[cfg(test)]
+    pub(crate) fn conn(&self) -> &Connection {
+        &self.conn
+    }
+}
+
+/// Converts a count or index to SQLite's integer (saturating: no plan or image gets near 2⁶³).
+fn to_i64(v: usize) -> i64 {
+    i64::try_from(v).unwrap_or(i64::MAX)
+}
+
+/// Maps a rusqlite error to a [`StorageError::Sqlite`] naming the database and the operation.
+fn sql_err<'a>(
+    path: &'a Path,
+    what: &'static str,
+) -> impl Fn(rusqlite::Error) -> StorageError + 'a {
+    move |source| StorageError::Sqlite {
+        path: path.to_path_buf(),
+        what,
+        source,
+    }
+}
+
+/// A non-negative integer column as `u64`.
+fn to_u64(column: usize, v: i64) -> rusqlite::Result<u64> {
+    u64::try_from(v).map_err(|_| rusqlite::Error::IntegralValueOutOfRange(column, v))
+}
+
+/// A non-negative integer column as `usize`.
+fn to_usize(column: usize, v: i64) -> rusqlite::Result<usize> {
+    usize::try_from(v).map_err(|_| rusqlite::Error::IntegralValueOutOfRange(column, v))
+}
+
+/// Reads a non-negative integer column as `usize`.
+fn get_usize(row: &rusqlite::Row<'_>, column: usize) -> rusqlite::Result<usize> {
+    to_usize(column, row.get(column)?)
+}

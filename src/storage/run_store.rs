@@ -1,0 +1,485 @@
+//! [`RunStore`]: the one writer of a run directory.
+//!
+//! Crash-safety contract (DESIGN.md invariant 4):
+//! - a step is done exactly when its `steps` row says so, and that row commits (in the same
+//!   SQLite transaction as the step's frame rows) only after every frame file of the step is
+//!   written, fsynced, renamed into place and the `frames/` directory fsynced;
+//! - frame file names are deterministic ([`frame_file_name`]), so a file on disk without a
+//!   committed row is an orphan of an interrupted step: resume re-runs that step, the rename
+//!   atomically replaces the orphan and the commit replaces the step's rows, so nothing is
+//!   duplicated;
+//! - `manifest.json` is written last by [`RunStore::create`], so a directory without it is an
+//!   interrupted creation, which [`RunStore::open`] refuses;
+//! - [`RunStore::open`] deletes leftover temp files, and an advisory lock (`.lock`, `flock`)
+//!   keeps a second process from writing the same run.
+
+use std::collections::{BTreeSet, HashSet};
+use std::ffi::CString;
+use std::fs::{self, File, OpenOptions};
+use std::os::unix::ffi::OsStrExt;
+use std::os::unix::io::AsRawFd;
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+
+use super::atomic::{fsync_dir, remove_stale_temps, write_atomic, write_atomic_durable};
+use super::checksum::sha256_hex;
+use super::error::{Result, StorageError};
+use super::exr_hdr::encode_exr;
+use super::frame_meta::{FrameKind, FramePixels, FrameToWrite, frame_file_name};
+use super::index::{Index, NewFrameRow, RunStatus, StepRecord, StoredFrame};
+use super::layout;
+use super::manifest::Manifest;
+use super::png16::encode_png16;
+use crate::plan::Plan;
+
+/// How many `-N` suffixes `create` tries before giving up.
+const MAX_NAME_TRIES: u32 = 1000;
+
+/// A run directory open for writing. Owns the directory's lock and its index connection; use
+/// it from one writer thread (it is `Send`, not `Sync`).
+pub struct RunStore {
+    dir: PathBuf,
+    frames_dir: PathBuf,
+    index: Index,
+    manifest: Manifest,
+    /// Held for the store's lifetime: the `flock` is released when the file closes.
+    _lock: File,
+}
+
+/// A frame file written to disk (not yet indexed).
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct WrittenFrame {
+    /// Index of the frame in the slice given to `write_frames`.
+    pub position: usize,
+    /// Absolute path.
+    pub path: PathBuf,
+    /// Path relative to the run directory.
+    pub rel_path: String,
+    pub sha256: String,
+    pub size_bytes: u64,
+}
+
+impl std::fmt::Debug for RunStore {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RunStore")
+            .field("dir", &self.dir)
+            .finish_non_exhaustive()
+    }
+}
+
+impl RunStore {
+    /// Creates `<root>/<run_id>/` (run id `"<script stem>-<UTC yyyymmdd-hhmmss>-<first 8 of
+    /// plan hash>"`, with `-2`, `-3`, … appended if taken) and writes `plan.json`, the script
+    /// copy, `rig.toml`, `index.sqlite` (WAL; the run row with status running and one pending
+    /// row per plan step) and finally `manifest.json`.
+    ///
+    /// Fills in `manifest.run_id` and `manifest.format_version`, and `manifest.plan_hash` when
+    /// it is empty; a non-empty `plan_hash` that does not match `plan` is an error. On any
+    /// error the half-made run directory is removed again.
+    pub fn create(root: &Path, mut manifest: Manifest, plan: &Plan) -> Result<RunStore> {
+        let plan_json = serde_json::to_vec(plan).map_err(|source| StorageError::Json {
+            op: "encode",
+            path: root.join(layout::PLAN),
+            source,
+        })?;
+        let plan_hash = sha256_hex(&plan_json);
+        if manifest.plan_hash.is_empty() {
+            manifest.plan_hash = plan_hash.clone();
+        } else if manifest.plan_hash != plan_hash {
+            return Err(StorageError::PlanHashMismatch {
+                path: root.to_path_buf(),
+                expected: manifest.plan_hash,
+                found: plan_hash,
+            });
+        }
+        manifest.format_version = Manifest::FORMAT_VERSION;
+
+        fs::create_dir_all(root).map_err(|source| StorageError::CreateRoot {
+            path: root.to_path_buf(),
+            source,
+        })?;
+        let base = layout::run_id(&manifest.script_name, manifest.created_unix_s, &plan_hash);
+        let mut claimed = None;
+        for n in 1..=MAX_NAME_TRIES {
+            let name = layout::candidate(&base, n);
+            let dir = root.join(&name);
+            match fs::create_dir(&dir) {
+                Ok(()) => {
+                    claimed = Some((name, dir));
+                    break;
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+                Err(source) => {
+                    return Err(if n == 1 {
+                        // The root exists but we cannot create entries in it.
+                        StorageError::CreateRoot {
+                            path: root.to_path_buf(),
+                            source,
+                        }
+                    } else {
+                        StorageError::CreateRunDir { path: dir, source }
+                    });
+                }
+            }
+        }
+        let Some((run_id, dir)) = claimed else {
+            return Err(StorageError::NoFreeRunName {
+                root: root.to_path_buf(),
+                base,
+                tries: MAX_NAME_TRIES,
+            });
+        };
+        manifest.run_id = run_id;
+
+        match RunStore::populate(&dir, manifest, plan, &plan_json) {
+            Ok(store) => {
+                fsync_dir(root)?;
+                tracing::info!(dir = %dir.display(), steps = plan.steps.len(), "created run");
+                Ok(store)
+            }
+            Err(err) => {
+                if let Err(rm) = fs::remove_dir_all(&dir) {
+                    tracing::warn!(dir = %dir.display(), error = %rm, "could not remove half-created run directory");
+                }
+                Err(err)
+            }
+        }
+    }
+
+    /// Fills a freshly claimed run directory; `manifest.json` goes last.
+    fn populate(dir: &Path, manifest: Manifest, plan: &Plan, plan_json: &[u8]) -> Result<RunStore> {
+        let lock = lock_run(dir)?;
+        let frames_dir = dir.join(layout::FRAMES_DIR);
+        fs::create_dir(&frames_dir)
+            .map_err(|e| StorageError::io("create directory", &frames_dir, e))?;
+        write_atomic(dir, layout::PLAN, plan_json)?;
+        write_atomic(
+            dir,
+            &layout::script_copy_name(&manifest.script_name),
+            manifest.script_text.as_bytes(),
+        )?;
+        write_atomic(dir, layout::RIG, manifest.rig_toml.as_bytes())?;
+        let index = Index::create(&dir.join(layout::INDEX), &manifest, plan)?;
+        fsync_dir(dir)?;
+        let manifest_json =
+            serde_json::to_vec_pretty(&manifest).map_err(|source| StorageError::Json {
+                op: "encode",
+                path: dir.join(layout::MANIFEST),
+                source,
+            })?;
+        write_atomic_durable(dir, layout::MANIFEST, &manifest_json)?;
+        Ok(RunStore {
+            dir: dir.to_path_buf(),
+            frames_dir,
+            index,
+            manifest,
+            _lock: lock,
+        })
+    }
+
+    /// Opens an existing run for resume: reads the manifest and plan, checks the plan against
+    /// the manifest's plan hash, takes the run's write lock and removes stale temp files.
+    pub fn open(run_dir: &Path) -> Result<(RunStore, Manifest, Plan)> {
+        let dir = run_dir.to_path_buf();
+        if !dir.is_dir() {
+            return Err(StorageError::NotARun {
+                path: dir,
+                missing: "the directory itself",
+            });
+        }
+        let manifest_path = dir.join(layout::MANIFEST);
+        let manifest_bytes = read_required(&dir, layout::MANIFEST)?;
+        let manifest: Manifest =
+            serde_json::from_slice(&manifest_bytes).map_err(|source| StorageError::Json {
+                op: "decode",
+                path: manifest_path,
+                source,
+            })?;
+        if manifest.format_version > Manifest::FORMAT_VERSION {
+            return Err(StorageError::UnsupportedFormat {
+                path: dir,
+                found: manifest.format_version,
+                supported: Manifest::FORMAT_VERSION,
+            });
+        }
+        let lock = lock_run(&dir)?;
+
+        // plan.json holds the exact canonical bytes the hash was taken over; hashing the bytes
+        // (not a re-serialisation) keeps the check independent of float parsing precision.
+        let plan_bytes = read_required(&dir, layout::PLAN)?;
+        let found = sha256_hex(&plan_bytes);
+        if found != manifest.plan_hash {
+            return Err(StorageError::PlanHashMismatch {
+                path: dir,
+                expected: manifest.plan_hash,
+                found,
+            });
+        }
+        let plan: Plan =
+            serde_json::from_slice(&plan_bytes).map_err(|source| StorageError::Json {
+                op: "decode",
+                path: dir.join(layout::PLAN),
+                source,
+            })?;
+        if plan.hash() != manifest.plan_hash {
+            tracing::warn!(
+                dir = %dir.display(),
+                "plan.json is intact but does not re-serialise to the same bytes (float parsing \
+                 precision); enable serde_json's float_roundtrip feature"
+            );
+        }
+
+        let index_path = dir.join(layout::INDEX);
+        if !index_path.is_file() {
+            return Err(StorageError::NotARun {
+                path: dir,
+                missing: layout::INDEX,
+            });
+        }
+        let index = Index::open(&index_path)?;
+        let indexed_id = index.run_id()?;
+        if indexed_id != manifest.run_id {
+            return Err(StorageError::CorruptIndex {
+                path: index_path,
+                reason: format!(
+                    "it indexes run {indexed_id}, the manifest says {}",
+                    manifest.run_id
+                ),
+            });
+        }
+
+        let frames_dir = dir.join(layout::FRAMES_DIR);
+        remove_stale_temps(&dir)?;
+        remove_stale_temps(&frames_dir)?;
+        let store = RunStore {
+            dir,
+            frames_dir,
+            index,
+            manifest: manifest.clone(),
+            _lock: lock,
+        };
+        tracing::info!(dir = %store.dir.display(), done = store.done_steps()?.len(), steps = plan.steps.len(), "opened run for resume");
+        Ok((store, manifest, plan))
+    }
+
+    /// The run directory.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// The run id (the directory name).
+    pub fn run_id(&self) -> &str {
+        &self.manifest.run_id
+    }
+
+    /// The manifest as written to `manifest.json`.
+    pub fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+
+    /// Indices of the steps whose frames are durable and indexed.
+    pub fn done_steps(&self) -> Result<BTreeSet<usize>> {
+        self.index.done_steps()
+    }
+
+    /// Rig time (seconds) at the end of the last committed step — the largest `rig_time_end_s`
+    /// of the done steps — or 0 if none, so a resumed run continues its rig clock.
+    pub fn last_rig_time_s(&self) -> Result<f64> {
+        self.index.last_rig_time_s()
+    }
+
+    /// Makes a step durable: writes every frame (temp → fsync → rename, then fsyncs `frames/`),
+    /// then in ONE transaction replaces the step's frame rows and marks the step done.
+    /// Idempotent: committing a step again rewrites the same files and leaves the same rows.
+    ///
+    /// Every frame must belong to `record.step`, carry pixels of its `kind` and size, and (raw)
+    /// have an exposure index; no two frames may share a file name. Returns the written files.
+    pub fn commit_step(
+        &mut self,
+        record: &StepRecord,
+        frames: Vec<FrameToWrite>,
+    ) -> Result<Vec<PathBuf>> {
+        let written = self.write_frames(record.step, &frames)?;
+        let rows: Vec<NewFrameRow<'_>> = written
+            .iter()
+            .map(|w| NewFrameRow {
+                path: w.rel_path.clone(),
+                sha256: w.sha256.clone(),
+                size_bytes: w.size_bytes,
+                meta: &frames[w.position].meta,
+            })
+            .collect();
+        self.index.commit_step(record, &rows)?;
+        tracing::debug!(step = record.step, frames = written.len(), "step committed");
+        Ok(written.into_iter().map(|w| w.path).collect())
+    }
+
+    /// Validates, encodes and durably writes the frames of `step` (files only, no index rows):
+    /// the first half of [`RunStore::commit_step`].
+    pub(crate) fn write_frames(
+        &self,
+        step: usize,
+        frames: &[FrameToWrite],
+    ) -> Result<Vec<WrittenFrame>> {
+        let invalid = |reason: String| StorageError::InvalidCommit {
+            step,
+            run: self.dir.clone(),
+            reason,
+        };
+        let mut names = HashSet::with_capacity(frames.len());
+        for f in frames {
+            let name = frame_file_name(&f.meta);
+            if f.meta.step != step {
+                return Err(invalid(format!(
+                    "frame {name} belongs to step {}",
+                    f.meta.step
+                )));
+            }
+            if f.pixels.kind() != f.meta.kind {
+                return Err(invalid(format!(
+                    "frame {name} is {} but carries {} pixels",
+                    f.meta.kind.as_str(),
+                    f.pixels.kind().as_str()
+                )));
+            }
+            if f.meta.kind == FrameKind::Raw && f.meta.exposure_index.is_none() {
+                return Err(invalid(format!(
+                    "raw frame of camera {} has no exposure index",
+                    f.meta.camera
+                )));
+            }
+            if !names.insert(name.clone()) {
+                return Err(invalid(format!(
+                    "two frames map to the file name {name} (same camera and exposure, or camera ids \
+                     that differ only in characters unsafe for file names)"
+                )));
+            }
+        }
+        let frames_dir = &self.frames_dir;
+        let written = frames
+            .par_iter()
+            .enumerate()
+            .map(|(position, f)| -> Result<WrittenFrame> {
+                let name = frame_file_name(&f.meta);
+                let json = f
+                    .meta
+                    .embedded_json()
+                    .map_err(|source| StorageError::Json {
+                        op: "encode",
+                        path: frames_dir.join(&name),
+                        source,
+                    })?;
+                let bytes = match &f.pixels {
+                    FramePixels::Raw(px) => {
+                        encode_png16(&name, f.meta.width, f.meta.height, px, &json)?
+                    }
+                    FramePixels::Hdr(px) => {
+                        encode_exr(&name, f.meta.width, f.meta.height, px, &json)?
+                    }
+                };
+                let sha256 = sha256_hex(&bytes);
+                let path = write_atomic(frames_dir, &name, &bytes)?;
+                Ok(WrittenFrame {
+                    position,
+                    path,
+                    rel_path: format!("{}/{name}", layout::FRAMES_DIR),
+                    sha256,
+                    size_bytes: bytes.len() as u64,
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        fsync_dir(frames_dir)?;
+        Ok(written)
+    }
+
+    /// Sets the run status (and an optional message, e.g. the error that failed the run).
+    pub fn set_status(&self, status: RunStatus, message: Option<&str>) -> Result<()> {
+        self.index.set_status(status, message)
+    }
+
+    /// The run status and its message.
+    pub fn status(&self) -> Result<(RunStatus, Option<String>)> {
+        self.index.status()
+    }
+
+    /// Frame rows of the index, of one step or (with `None`) all, ordered by step and path.
+    pub fn frames(&self, step: Option<usize>) -> Result<Vec<StoredFrame>> {
+        self.index.frames(step)
+    }
+
+    /// Bytes available to this (unprivileged) process on the dataset's file system.
+    pub fn available_bytes(&self) -> Result<u64> {
+        available_bytes(&self.dir)
+    }
+
+    /// The index, for ad-hoc queries in tests.
+    #[cfg(test)]
+    pub(crate) fn index(&self) -> &Index {
+        &self.index
+    }
+}
+
+/// Reads a file the run layout requires, or says the directory is not a complete run.
+fn read_required(dir: &Path, name: &'static str) -> Result<Vec<u8>> {
+    let path = dir.join(name);
+    match fs::read(&path) {
+        Ok(bytes) => Ok(bytes),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(StorageError::NotARun {
+            path: dir.to_path_buf(),
+            missing: name,
+        }),
+        Err(e) => Err(StorageError::io("read", path, e)),
+    }
+}
+
+/// Takes the run's exclusive advisory write lock (non-blocking).
+fn lock_run(dir: &Path) -> Result<File> {
+    let path = dir.join(layout::LOCK);
+    let file = OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&path)
+        .map_err(|e| StorageError::io("open lock file", &path, e))?;
+    // SAFETY: flock on a file descriptor we own and keep open; no memory is shared.
+    let rc = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
+    if rc != 0 {
+        let err = std::io::Error::last_os_error();
+        if err.kind() == std::io::ErrorKind::WouldBlock {
+            return Err(StorageError::RunInUse {
+                path: dir.to_path_buf(),
+                lock: path,
+            });
+        }
+        return Err(StorageError::io("lock", path, err));
+    }
+    Ok(file)
+}
+
+/// Bytes available to unprivileged users on the file system holding `path` (statvfs).
+fn available_bytes(path: &Path) -> Result<u64> {
+    let c_path = CString::new(path.as_os_str().as_bytes()).map_err(|_| {
+        StorageError::io(
+            "query free space of",
+            path,
+            std::io::Error::new(std::io::ErrorKind::InvalidInput, "path contains a NUL byte"),
+        )
+    })?;
+    // SAFETY: statvfs is plain old data, so all-zero is a valid value, and the call only
+    // writes into it; c_path is a valid NUL-terminated string for the call's duration.
+    let mut st: libc::statvfs = unsafe { std::mem::zeroed() };
+    // SAFETY: see above.
+    let rc = unsafe { libc::statvfs(c_path.as_ptr(), &mut st) };
+    if rc != 0 {
+        return Err(StorageError::io(
+            "query free space of",
+            path,
+            std::io::Error::last_os_error(),
+        ));
+    }
+    // The field types differ between platforms (u32 or u64); widen without a lossy cast.
+    #[allow(clippy::unnecessary_cast, clippy::useless_conversion)]
+    let (blocks, size) = (st.f_bavail as u64, st.f_frsize as u64);
+    Ok(blocks.saturating_mul(size))
+}

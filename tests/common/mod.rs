@@ -1,0 +1,211 @@
+//! Shared helpers for the integration tests: small simulated rigs, running sequences through
+//! the library on the paused-clock runtime, and reading datasets back.
+
+#![allow(dead_code)]
+
+use std::future::Future;
+use std::path::{Path, PathBuf};
+use std::pin::Pin;
+use std::sync::{Arc, Mutex};
+
+use stagehand::executor::{Answer, AutoConfirm, Event, Operator, RunControl, Summary};
+use stagehand::rig::RigSource;
+use stagehand::script::ScriptSource;
+use stagehand::session::{self, DEFAULT_RESERVE_BYTES, Prepared, SessionError, Wiring};
+use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, BUILTIN_REFLECTOMETER};
+use tokio::sync::broadcast;
+
+/// Repository root (where `sequences/` lives).
+pub fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The built-in rig with cameras shrunk to `w`×`h` so tests render fast.
+pub fn small_rig(name: &str, w: u32, h: u32) -> RigSource {
+    let text = match name {
+        "reflectometer" => BUILTIN_REFLECTOMETER,
+        _ => BUILTIN_LIGHTSTAGE,
+    };
+    let text = text
+        .replace("width = 1024", &format!("width = {w}"))
+        .replace("height = 768", &format!("height = {h}"));
+    RigSource::from_text(&text, &format!("test:{name}")).expect("built-in rig parses")
+}
+
+/// Writes the small rig to a file (for CLI tests).
+pub fn small_rig_file(dir: &Path, name: &str, w: u32, h: u32) -> PathBuf {
+    let rig = small_rig(name, w, h);
+    let path = dir.join(format!("{name}-{w}x{h}.toml"));
+    std::fs::write(&path, rig.text).expect("write rig");
+    path
+}
+
+pub fn script(name: &str) -> ScriptSource {
+    ScriptSource::from_file(&root().join("sequences").join(name)).expect("sequence exists")
+}
+
+pub fn sets(pairs: &[(&str, &str)]) -> Vec<(String, String)> {
+    pairs
+        .iter()
+        .map(|(k, v)| (k.to_string(), v.to_string()))
+        .collect()
+}
+
+/// Records every prompt and answers with `answer_at(step)`.
+pub struct ScriptedOperator {
+    pub prompts: Mutex<Vec<(usize, String)>>,
+    pub abort_at: Option<usize>,
+}
+
+impl ScriptedOperator {
+    pub fn new(abort_at: Option<usize>) -> Arc<Self> {
+        Arc::new(Self {
+            prompts: Mutex::new(Vec::new()),
+            abort_at,
+        })
+    }
+}
+
+impl Operator for ScriptedOperator {
+    fn confirm<'a>(
+        &'a self,
+        step: usize,
+        message: &'a str,
+    ) -> Pin<Box<dyn Future<Output = Answer> + Send + 'a>> {
+        self.prompts
+            .lock()
+            .unwrap()
+            .push((step, message.to_string()));
+        let answer = if self.abort_at == Some(step) {
+            Answer::Abort
+        } else {
+            Answer::Continue
+        };
+        Box::pin(async move { answer })
+    }
+}
+
+/// A finished run: its directory, its summary (or error) and every event it emitted.
+pub struct Outcome {
+    pub dir: PathBuf,
+    pub result: Result<Summary, SessionError>,
+    pub events: Vec<Event>,
+}
+
+/// Runs `prepared` into a new run under `out` on the runtime the rig needs.
+pub fn run_prepared(
+    prepared: Prepared,
+    out: &Path,
+    seed: u64,
+    operator: Arc<dyn Operator>,
+    control: RunControl,
+) -> Outcome {
+    let runtime = session::runtime_for(&prepared.rig).expect("runtime");
+    let store = session::create_run(&prepared, out, seed).expect("create run");
+    let dir = store.dir().to_path_buf();
+    let (result, events) = runtime.block_on(async move {
+        let (tx, mut rx) = broadcast::channel(100_000);
+        let collector = tokio::spawn(async move {
+            let mut all = Vec::new();
+            while let Ok(e) = rx.recv().await {
+                let end = matches!(e, Event::RunFinished { .. });
+                all.push(e);
+                if end {
+                    break;
+                }
+            }
+            all
+        });
+        let wiring = Wiring {
+            events: tx,
+            control,
+            operator,
+            reserve_bytes: DEFAULT_RESERVE_BYTES,
+        };
+        let rig = session::open_rig(&prepared.rig, seed).expect("open rig");
+        let r = session::run(prepared, store, rig, wiring).await;
+        (r, collector.await.unwrap_or_default())
+    });
+    Outcome {
+        dir,
+        result,
+        events,
+    }
+}
+
+/// Builds and runs a sequence with `--set` overrides on a small rig; confirms every prompt.
+pub fn run_sequence(
+    seq: &str,
+    rig: RigSource,
+    overrides: &[(&str, &str)],
+    out: &Path,
+    seed: u64,
+) -> Outcome {
+    let prepared = session::prepare(script(seq), &sets(overrides), rig).expect("sequence prepares");
+    run_prepared(
+        prepared,
+        out,
+        seed,
+        Arc::new(AutoConfirm),
+        RunControl::new(),
+    )
+}
+
+/// Resumes a run through the library.
+pub fn resume(dir: &Path, operator: Arc<dyn Operator>) -> Result<Summary, SessionError> {
+    let reopened = session::reopen(dir)?;
+    let runtime = session::runtime_for(&reopened.rig).expect("runtime");
+    runtime.block_on(async move {
+        let (tx, _) = broadcast::channel(1024);
+        let wiring = Wiring {
+            events: tx,
+            control: RunControl::new(),
+            operator,
+            reserve_bytes: DEFAULT_RESERVE_BYTES,
+        };
+        session::resume(reopened, wiring).await
+    })
+}
+
+/// Opens a run's index read-only.
+pub fn db(dir: &Path) -> rusqlite::Connection {
+    rusqlite::Connection::open_with_flags(
+        dir.join("index.sqlite"),
+        rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY,
+    )
+    .expect("open index")
+}
+
+/// (path, sha256) of every frame in the index, sorted by path.
+pub fn checksums(dir: &Path) -> Vec<(String, String)> {
+    let conn = db(dir);
+    let mut stmt = conn
+        .prepare("SELECT path, sha256 FROM frames ORDER BY path")
+        .unwrap();
+    stmt.query_map([], |r| Ok((r.get(0)?, r.get(1)?)))
+        .unwrap()
+        .map(|r| r.unwrap())
+        .collect()
+}
+
+/// sha256 of every file under frames/, recomputed from disk, sorted by name.
+pub fn disk_checksums(dir: &Path) -> Vec<(String, String)> {
+    use sha2::{Digest, Sha256};
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir(dir.join("frames")).unwrap() {
+        let entry = entry.unwrap();
+        let name = entry.file_name().to_string_lossy().to_string();
+        let bytes = std::fs::read(entry.path()).unwrap();
+        let hex: String = Sha256::digest(&bytes)
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect();
+        out.push((name, hex));
+    }
+    out.sort();
+    out
+}
+
+pub fn count(conn: &rusqlite::Connection, sql: &str) -> i64 {
+    conn.query_row(sql, [], |r| r.get(0)).unwrap()
+}
