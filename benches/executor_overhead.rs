@@ -16,10 +16,12 @@ use stagehand::script::ScriptSource;
 use stagehand::session::{self, Prepared, Wiring};
 use stagehand_devices::rig::BUILTIN_LIGHTSTAGE;
 
-fn rig(w: u32, h: u32) -> RigSource {
+/// The built-in light stage with `w`×`h` cameras and `sample` on the turntable.
+fn rig(w: u32, h: u32, sample: &str) -> RigSource {
     let text = BUILTIN_LIGHTSTAGE
         .replace("width = 1024", &format!("width = {w}"))
-        .replace("height = 768", &format!("height = {h}"));
+        .replace("height = 768", &format!("height = {h}"))
+        .replace("sample = \"bumps\"", &format!("sample = \"{sample}\""));
     RigSource::from_text(&text, "bench:lightstage").expect("rig")
 }
 
@@ -125,40 +127,44 @@ fn main() {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(10_000);
+    // STAGEHAND_BENCH=no_frames|frames|btf runs one measurement (for profiling).
+    let only = std::env::var("STAGEHAND_BENCH").ok();
+    let wanted = |name: &str| only.as_deref().is_none_or(|o| o == name);
 
-    let tmp = scratch();
-    let m = run(
-        prepared_from_plan(synthetic_plan(n, None), rig(16, 12)),
-        tmp.path(),
-    );
-    println!(
-        "{}",
-        serde_json::json!({"bench": "executor_no_frames", "steps": n, "wall_s": m.wall_s, "us_per_step": m.wall_s * 1e6 / n as f64, "rig_time_s": m.rig_s})
-    );
-
-    let tmp = scratch();
-    let m = run(
-        prepared_from_plan(synthetic_plan(n, Some(4)), rig(16, 12)),
-        tmp.path(),
-    );
-    println!(
-        "{}",
-        serde_json::json!({"bench": "executor_frames_flowing", "steps": n, "frames": m.frames, "camera": "16x12", "wall_s": m.wall_s, "us_per_step": m.wall_s * 1e6 / n as f64})
-    );
-
-    // Plan estimate against the simulated rig time for the full btf.rhai (12×12×8 × bracket).
-    let tmp = scratch();
-    let script = ScriptSource::from_file(std::path::Path::new(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/sequences/btf.rhai"
-    )))
-    .expect("btf.rhai");
-    let prepared = session::prepare(script, &[], rig(8, 6)).expect("btf prepares");
-    let steps = prepared.plan.steps.len();
-    let m = run(prepared, tmp.path());
-    let error = (m.estimated_s - m.rig_s) / m.rig_s;
-    println!(
-        "{}",
-        serde_json::json!({"bench": "btf_estimate", "steps": steps, "frames": m.frames, "estimated_rig_s": m.estimated_s, "simulated_rig_s": m.rig_s, "relative_error": error, "wall_s": m.wall_s})
-    );
+    if wanted("no_frames") {
+        let tmp = scratch();
+        let m = run(
+            prepared_from_plan(synthetic_plan(n, None), rig(16, 12, "flat")),
+            tmp.path(),
+        );
+        println!(
+            "{}",
+            serde_json::json!({"bench": "executor_no_frames", "steps": n, "wall_s": m.wall_s, "us_per_step": m.wall_s * 1e6 / n as f64, "rig_time_s": m.rig_s})
+        );
+    }
+    if wanted("frames") {
+        let tmp = scratch();
+        let m = run(
+            prepared_from_plan(synthetic_plan(n, Some(4)), rig(16, 12, "flat")),
+            tmp.path(),
+        );
+        println!(
+            "{}",
+            serde_json::json!({"bench": "executor_frames_flowing", "steps": n, "frames": m.frames, "camera": "16x12", "sample": "flat", "wall_s": m.wall_s, "us_per_step": m.wall_s * 1e6 / n as f64})
+        );
+    }
+    if wanted("btf") {
+        // Plan estimate against the simulated rig time for the full btf.rhai (12×12×8 × bracket).
+        let tmp = scratch();
+        let path = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/sequences/btf.rhai"));
+        let script = ScriptSource::from_file(path).expect("btf.rhai");
+        let prepared = session::prepare(script, &[], rig(8, 6, "bumps")).expect("btf prepares");
+        let steps = prepared.plan.steps.len();
+        let m = run(prepared, tmp.path());
+        let error = (m.estimated_s - m.rig_s) / m.rig_s;
+        println!(
+            "{}",
+            serde_json::json!({"bench": "btf_estimate", "steps": steps, "frames": m.frames, "estimated_rig_s": m.estimated_s, "simulated_rig_s": m.rig_s, "relative_error": error, "wall_s": m.wall_s})
+        );
+    }
 }

@@ -26,32 +26,174 @@ struct View {
     exposure_s: f64,
 }
 
-const fn view(name: &'static str, fixture: &'static str, camera: &'static str, lamps: &'static [(&'static str, f64)], exposure_s: f64) -> View {
-    View { name, fixture, camera, lamps, laser: None, turntable_deg: 0.0, light_arc_deg: 0.0, cart_mm: 0.0, exposure_s }
+const fn view(
+    name: &'static str,
+    fixture: &'static str,
+    camera: &'static str,
+    lamps: &'static [(&'static str, f64)],
+    exposure_s: f64,
+) -> View {
+    View {
+        name,
+        fixture,
+        camera,
+        lamps,
+        laser: None,
+        turntable_deg: 0.0,
+        light_arc_deg: 0.0,
+        cart_mm: 0.0,
+        exposure_s,
+    }
 }
 
 const LIGHTSTAGE_VIEWS: &[View] = &[
-    View { light_arc_deg: 150.0, ..view("bumps_lamp3_cam5", "bumps", "cam5", &[("lamp3", 1.0)], 0.03) },
-    View { light_arc_deg: 150.0, ..view("bumps_lamp1_cam5_shadows", "bumps", "cam5", &[("lamp1", 1.0)], 0.04) },
-    View { light_arc_deg: 90.0, ..view("bumps_lamp2_cam1_grazing", "bumps", "cam1", &[("lamp2", 1.0)], 0.04) },
-    View { light_arc_deg: 180.0, ..view("bumps_lamp5_cam8_specular", "bumps", "cam8", &[("lamp5", 1.0)], 0.03) },
-    View { laser: Some((650, 0.0)), ..view("bumps_laser650_cam4", "bumps", "cam4", &[], 0.004) },
-    View { laser: Some((532, 2.0)), ..view("planes_laser532_tilt2_cam6", "planes", "cam6", &[], 0.004) },
-    View { laser: Some((473, -1.0)), ..view("bumps_laser473_lamp4_cam6", "bumps", "cam6", &[("lamp4", 0.3)], 0.004) },
-    View { light_arc_deg: 30.0, ..view("checkerboard_lamp5_cam5", "checkerboard", "cam5", &[("lamp5", 1.0)], 0.02) },
-    View { turntable_deg: 20.0, ..view("checkerboard_turntable20_cam3", "checkerboard", "cam3", &[("lamp6", 1.0)], 0.02) },
-    View { light_arc_deg: 20.0, ..view("colorchecker_lamp7_cam8", "colorchecker", "cam8", &[("lamp7", 1.0)], 0.02) },
-    View { light_arc_deg: 120.0, ..view("steps_lamp2_cam6", "steps", "cam6", &[("lamp2", 1.0)], 0.03) },
-    View { light_arc_deg: 60.0, ..view("weave_lamp3_cam7", "weave", "cam7", &[("lamp3", 1.0)], 0.03) },
-    View { light_arc_deg: 45.0, ..view("flat_lamp6_cam7", "flat", "cam7", &[("lamp6", 1.0)], 0.02) },
+    View {
+        light_arc_deg: 150.0,
+        ..view("bumps_lamp3_cam5", "bumps", "cam5", &[("lamp3", 1.0)], 0.03)
+    },
+    View {
+        light_arc_deg: 150.0,
+        ..view(
+            "bumps_lamp1_cam5_shadows",
+            "bumps",
+            "cam5",
+            &[("lamp1", 1.0)],
+            0.04,
+        )
+    },
+    View {
+        light_arc_deg: 90.0,
+        ..view(
+            "bumps_lamp2_cam1_grazing",
+            "bumps",
+            "cam1",
+            &[("lamp2", 1.0)],
+            0.04,
+        )
+    },
+    View {
+        light_arc_deg: 180.0,
+        ..view(
+            "bumps_lamp5_cam8_specular",
+            "bumps",
+            "cam8",
+            &[("lamp5", 1.0)],
+            0.03,
+        )
+    },
+    View {
+        laser: Some((650, 0.0)),
+        ..view("bumps_laser650_cam4", "bumps", "cam4", &[], 0.004)
+    },
+    View {
+        laser: Some((532, 2.0)),
+        ..view("planes_laser532_tilt2_cam6", "planes", "cam6", &[], 0.004)
+    },
+    View {
+        laser: Some((473, -1.0)),
+        ..view(
+            "bumps_laser473_lamp4_cam6",
+            "bumps",
+            "cam6",
+            &[("lamp4", 0.3)],
+            0.004,
+        )
+    },
+    View {
+        light_arc_deg: 30.0,
+        ..view(
+            "checkerboard_lamp5_cam5",
+            "checkerboard",
+            "cam5",
+            &[("lamp5", 1.0)],
+            0.02,
+        )
+    },
+    View {
+        turntable_deg: 20.0,
+        ..view(
+            "checkerboard_turntable20_cam3",
+            "checkerboard",
+            "cam3",
+            &[("lamp6", 1.0)],
+            0.02,
+        )
+    },
+    View {
+        light_arc_deg: 20.0,
+        ..view(
+            "colorchecker_lamp7_cam8",
+            "colorchecker",
+            "cam8",
+            &[("lamp7", 1.0)],
+            0.02,
+        )
+    },
+    View {
+        light_arc_deg: 120.0,
+        ..view("steps_lamp2_cam6", "steps", "cam6", &[("lamp2", 1.0)], 0.03)
+    },
+    View {
+        light_arc_deg: 60.0,
+        ..view("weave_lamp3_cam7", "weave", "cam7", &[("lamp3", 1.0)], 0.03)
+    },
+    View {
+        light_arc_deg: 45.0,
+        ..view("flat_lamp6_cam7", "flat", "cam7", &[("lamp6", 1.0)], 0.02)
+    },
 ];
 
 const REFLECTOMETER_VIEWS: &[View] = &[
-    View { cart_mm: 60.0, ..view("reflectometer_weave_tube_cart60", "weave", "cam1", &[("tube", 1.0)], 0.02) },
-    View { cart_mm: 120.0, ..view("reflectometer_weave_tube_cart120", "weave", "cam1", &[("tube", 1.0)], 0.02) },
-    View { cart_mm: 200.0, ..view("reflectometer_weave_tube_cart200", "weave", "cam1", &[("tube", 1.0)], 0.02) },
-    View { cart_mm: 150.0, ..view("reflectometer_bumps_tube_cart150", "bumps", "cam1", &[("tube", 1.0)], 0.02) },
-    View { cart_mm: 0.0, ..view("reflectometer_weave_backlight", "weave", "cam1", &[("backlight", 1.0)], 0.05) },
+    View {
+        cart_mm: 60.0,
+        ..view(
+            "reflectometer_weave_tube_cart60",
+            "weave",
+            "cam1",
+            &[("tube", 1.0)],
+            0.02,
+        )
+    },
+    View {
+        cart_mm: 120.0,
+        ..view(
+            "reflectometer_weave_tube_cart120",
+            "weave",
+            "cam1",
+            &[("tube", 1.0)],
+            0.02,
+        )
+    },
+    View {
+        cart_mm: 200.0,
+        ..view(
+            "reflectometer_weave_tube_cart200",
+            "weave",
+            "cam1",
+            &[("tube", 1.0)],
+            0.02,
+        )
+    },
+    View {
+        cart_mm: 150.0,
+        ..view(
+            "reflectometer_bumps_tube_cart150",
+            "bumps",
+            "cam1",
+            &[("tube", 1.0)],
+            0.02,
+        )
+    },
+    View {
+        cart_mm: 0.0,
+        ..view(
+            "reflectometer_weave_backlight",
+            "weave",
+            "cam1",
+            &[("backlight", 1.0)],
+            0.05,
+        )
+    },
 ];
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -60,7 +202,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         std::process::exit(2);
     };
     std::fs::create_dir_all(&dir)?;
-    for (text, views) in [(BUILTIN_LIGHTSTAGE, LIGHTSTAGE_VIEWS), (BUILTIN_REFLECTOMETER, REFLECTOMETER_VIEWS)] {
+    for (text, views) in [
+        (BUILTIN_LIGHTSTAGE, LIGHTSTAGE_VIEWS),
+        (BUILTIN_REFLECTOMETER, REFLECTOMETER_VIEWS),
+    ] {
         let rig = parse_rig(text, "built-in")?;
         let renderer = Renderer::new(&rig)?;
         for v in views {
@@ -70,21 +215,41 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     ("turntable".to_string(), v.turntable_deg),
                     ("light_arc".to_string(), v.light_arc_deg),
                 ]),
-                lamps: v.lamps.iter().map(|(id, out)| (id.to_string(), *out)).collect(),
-                laser: v.laser.map(|(nm, tilt)| LaserBeam { colour_nm: nm, tilt_deg: tilt, mount_elevation_deg: 45.0 }),
+                lamps: v
+                    .lamps
+                    .iter()
+                    .map(|(id, out)| (id.to_string(), *out))
+                    .collect(),
+                laser: v.laser.map(|(nm, tilt)| LaserBeam {
+                    colour_nm: nm,
+                    tilt_deg: tilt,
+                    mount_elevation_deg: 45.0,
+                }),
                 cart_mm: v.cart_mm,
                 fixture: v.fixture.to_string(),
             };
             let frame = renderer.render(&world, v.camera, v.exposure_s, 1.0, 1)?;
             let path = dir.join(format!("{}.png", v.name));
-            write_png(&path, &rig, v.camera, renderer.black_level_dn(v.camera), &frame)?;
+            write_png(
+                &path,
+                &rig,
+                v.camera,
+                renderer.black_level_dn(v.camera),
+                &frame,
+            )?;
             println!("{} — {}", path.display(), frame.notes["effects"]);
         }
     }
     Ok(())
 }
 
-fn write_png(path: &Path, rig: &RigSpec, camera: &str, black: f64, frame: &Rendered) -> Result<(), Box<dyn std::error::Error>> {
+fn write_png(
+    path: &Path,
+    rig: &RigSpec,
+    camera: &str,
+    black: f64,
+    frame: &Rendered,
+) -> Result<(), Box<dyn std::error::Error>> {
     let cam = rig.camera(camera).ok_or("camera vanished")?;
     let max = ((1u32 << cam.bit_depth) - 1) as f64;
     let bytes: Vec<u8> = frame
@@ -92,7 +257,11 @@ fn write_png(path: &Path, rig: &RigSpec, camera: &str, black: f64, frame: &Rende
         .iter()
         .map(|&dn| {
             let x = ((dn as f64 - black) / (max - black)).clamp(0.0, 1.0);
-            let s = if x <= 0.003_130_8 { 12.92 * x } else { 1.055 * x.powf(1.0 / 2.4) - 0.055 };
+            let s = if x <= 0.003_130_8 {
+                12.92 * x
+            } else {
+                1.055 * x.powf(1.0 / 2.4) - 0.055
+            };
             (s * 255.0).round() as u8
         })
         .collect();

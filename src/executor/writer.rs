@@ -5,7 +5,7 @@
 
 use std::sync::{Arc, Mutex};
 
-use tokio::sync::{broadcast, mpsc, oneshot};
+use tokio::sync::{OwnedSemaphorePermit, Semaphore, broadcast, mpsc, oneshot};
 
 use super::RunError;
 use super::capture::StepFrames;
@@ -22,7 +22,8 @@ pub struct FinishReport {
 }
 
 enum Msg {
-    Step(StepRecord, StepFrames),
+    /// A finished step; the permit holds its share of the in-flight frame budget.
+    Step(StepRecord, StepFrames, OwnedSemaphorePermit),
     Finish(
         RunStatus,
         Option<String>,
@@ -34,10 +35,14 @@ enum Msg {
 pub struct WriterHandle {
     tx: mpsc::Sender<Msg>,
     failed: Arc<Mutex<Option<(usize, String)>>>,
+    budget: Arc<Semaphore>,
 }
 
-/// Steps queued ahead of the disk before the executor waits (bounds memory).
-const QUEUE_STEPS: usize = 3;
+/// Steps queued ahead of the disk before the executor waits.
+const QUEUE_STEPS: usize = 4096;
+/// Frame data (MiB) queued ahead of the disk before the executor waits: bounds memory while
+/// letting cheap steps run far ahead of the writer.
+const BUDGET_MIB: u32 = 512;
 
 impl WriterHandle {
     /// Starts the writer thread; it owns `store` until the run finishes. A step is refused
@@ -53,7 +58,11 @@ impl WriterHandle {
         std::thread::Builder::new()
             .name("stagehand-writer".into())
             .spawn(move || writer_loop(store, rx, events, flag, reserve_bytes))?;
-        Ok(WriterHandle { tx, failed })
+        Ok(WriterHandle {
+            tx,
+            failed,
+            budget: Arc::new(Semaphore::new(BUDGET_MIB as usize)),
+        })
     }
 
     fn failure(&self) -> Option<(usize, String)> {
@@ -71,11 +80,24 @@ impl WriterHandle {
         }
     }
 
-    /// Queues a finished step; waits only if the writer is `QUEUE_STEPS` steps behind.
+    /// Queues a finished step; waits only while the writer is more than the frame budget
+    /// (or `QUEUE_STEPS` steps) behind.
     pub async fn submit(&self, record: StepRecord, frames: StepFrames) -> Result<(), RunError> {
         let step = record.step;
+        let bytes: usize = frames.frames.iter().map(|(_, f)| f.pixels.len() * 2).sum();
+        let mib = (bytes >> 20).min(BUDGET_MIB as usize) as u32;
+        let stopped = || RunError::Storage {
+            step,
+            message: "the writer thread has stopped".into(),
+        };
+        let permit = self
+            .budget
+            .clone()
+            .acquire_many_owned(mib)
+            .await
+            .map_err(|_| stopped())?;
         self.tx
-            .send(Msg::Step(record, frames))
+            .send(Msg::Step(record, frames, permit))
             .await
             .map_err(|_| RunError::Storage {
                 step,
@@ -116,19 +138,37 @@ fn writer_loop(
 ) {
     let mut frames_written = 0usize;
     let mut first_failure: Option<(usize, String)> = None;
-    while let Some(msg) = rx.blocking_recv() {
+    let mut pending: Option<Msg> = None;
+    loop {
+        let Some(msg) = pending.take().or_else(|| rx.blocking_recv()) else {
+            return;
+        };
         match msg {
-            Msg::Step(record, frames) => {
+            Msg::Step(record, frames, permit) => {
+                // Take every step already queued (up to the next Finish) as one batch.
+                let mut batch = vec![(record, frames, permit)];
+                while batch.len() < MAX_BATCH {
+                    match rx.try_recv() {
+                        Ok(Msg::Step(r, f, p)) => batch.push((r, f, p)),
+                        Ok(other) => {
+                            pending = Some(other);
+                            break;
+                        }
+                        Err(_) => break,
+                    }
+                }
                 if first_failure.is_some() {
                     continue;
                 }
-                let step = record.step;
-                match write_step(&mut store, &record, frames, reserve_bytes) {
-                    Ok(n) => {
-                        frames_written += n;
-                        let _ = events.send(Event::StepDurable { step, files: n });
+                let steps: Vec<usize> = batch.iter().map(|(r, _, _)| r.step).collect();
+                match write_batch(&mut store, batch, reserve_bytes) {
+                    Ok(files) => {
+                        frames_written += files.iter().sum::<usize>();
+                        for (step, n) in steps.into_iter().zip(files) {
+                            let _ = events.send(Event::StepDurable { step, files: n });
+                        }
                     }
-                    Err(message) => {
+                    Err((step, message)) => {
                         tracing::error!("step {step}: {message}");
                         first_failure = Some((step, message.clone()));
                         *failed.lock().unwrap_or_else(|p| p.into_inner()) = Some((step, message));
@@ -157,13 +197,64 @@ fn writer_loop(
     }
 }
 
-/// Writes one step; returns the number of files written.
-fn write_step(
+/// Most steps journaled in one transaction.
+const MAX_BATCH: usize = 512;
+
+/// Writes a batch of steps (frames first, then one journal transaction); returns the number
+/// of files per step, or the first step that failed and why.
+fn write_batch(
     store: &mut RunStore,
-    record: &StepRecord,
-    frames: StepFrames,
+    batch: Vec<(StepRecord, StepFrames, OwnedSemaphorePermit)>,
     reserve_bytes: u64,
-) -> Result<usize, String> {
+) -> Result<Vec<usize>, (usize, String)> {
+    let first = batch.first().map(|(r, _, _)| r.step).unwrap_or(0);
+    let mut prepared = Vec::with_capacity(batch.len());
+    let mut needed = 0u64;
+    // Held until the batch is on disk, so the budget bounds memory truly in flight.
+    let mut permits = Vec::with_capacity(batch.len());
+    for (record, frames, permit) in batch {
+        permits.push(permit);
+        let step = record.step;
+        let out = prepare_step(frames).map_err(|m| (step, m))?;
+        needed += out
+            .iter()
+            .map(|f| {
+                f.pixels.len() as u64
+                    * if matches!(f.pixels, FramePixels::Raw(_)) {
+                        2
+                    } else {
+                        4
+                    }
+            })
+            .sum::<u64>();
+        prepared.push((record, out));
+    }
+    if needed > 0 {
+        let free = store
+            .available_bytes()
+            .map_err(|e| (first, e.to_string()))?;
+        if free < needed.saturating_add(reserve_bytes) {
+            return Err((
+                first,
+                format!(
+                    "disk nearly full at {}: {} free, the step needs up to {} plus a reserve of {}; free some space, then `stagehand resume` the run",
+                    store.dir().display(),
+                    human_bytes(free),
+                    human_bytes(needed),
+                    human_bytes(reserve_bytes)
+                ),
+            ));
+        }
+    }
+    let counts = prepared.iter().map(|(_, f)| f.len()).collect();
+    store
+        .commit_steps(prepared)
+        .map_err(|e| (first, e.to_string()))?;
+    Ok(counts)
+}
+
+/// Turns a step's captured frames into the files to write, merging HDR brackets.
+fn prepare_step(frames: StepFrames) -> Result<Vec<FrameToWrite>, String> {
     let mut merged = Vec::with_capacity(frames.hdr.len());
     for (meta, idx, black) in &frames.hdr {
         let bracket: Vec<&stagehand_devices::Frame> = idx
@@ -187,28 +278,7 @@ fn write_step(
         })
         .collect();
     out.extend(merged);
-    let needed: u64 = out
-        .iter()
-        .map(|f| match &f.pixels {
-            FramePixels::Raw(p) => p.len() as u64 * 2,
-            FramePixels::Hdr(p) => p.len() as u64 * 4,
-        })
-        .sum();
-    if needed > 0 {
-        let free = store.available_bytes().map_err(|e| e.to_string())?;
-        if free < needed.saturating_add(reserve_bytes) {
-            return Err(format!(
-                "disk nearly full at {}: {} free, the step needs up to {} plus a reserve of {}; free some space, then `stagehand resume` the run",
-                store.dir().display(),
-                human_bytes(free),
-                human_bytes(needed),
-                human_bytes(reserve_bytes)
-            ));
-        }
-    }
-    let n = out.len();
-    store.commit_step(record, out).map_err(|e| e.to_string())?;
-    Ok(n)
+    Ok(out)
 }
 
 /// Bytes in binary units for messages.

@@ -340,133 +340,151 @@ impl Index {
         Ok((status, message))
     }
 
-    /// In one transaction: replaces the step's frame rows with `rows` and marks it done.
+    /// Commits one step: its frame rows and its journal row, in one transaction.
     pub(crate) fn commit_step(
         &mut self,
         record: &StepRecord,
         rows: &[NewFrameRow<'_>],
     ) -> Result<()> {
-        let mut encoded = Vec::with_capacity(rows.len());
-        for row in rows {
-            let m = row.meta;
-            let json = |v: serde_json::Result<String>| v.map_err(self.json_err("frames"));
-            encoded.push((
-                json(serde_json::to_string(&m.exposures_s))?,
-                json(serde_json::to_string(&m.axes_deg))?,
-                json(serde_json::to_string(&m.lamps_on))?,
-                json(serde_json::to_string(&m.notes))?,
-            ));
-        }
+        self.commit_steps(&[(record, rows)])
+    }
+
+    /// Commits several steps in ONE transaction (one fsync): for each, replaces its frame rows
+    /// and marks it done. Either every step of the batch commits or none does.
+    pub(crate) fn commit_steps(
+        &mut self,
+        batch: &[(&StepRecord, &[NewFrameRow<'_>])],
+    ) -> Result<()> {
         let path = self.path.clone();
         let sqlite = |what| sql_err(&path, what);
-        let step = to_i64(record.step);
+        let mut encoded_batch = Vec::with_capacity(batch.len());
+        for (_, rows) in batch {
+            let mut encoded = Vec::with_capacity(rows.len());
+            for row in rows.iter() {
+                let m = row.meta;
+                let json = |v: serde_json::Result<String>| v.map_err(self.json_err("frames"));
+                encoded.push((
+                    json(serde_json::to_string(&m.exposures_s))?,
+                    json(serde_json::to_string(&m.axes_deg))?,
+                    json(serde_json::to_string(&m.lamps_on))?,
+                    json(serde_json::to_string(&m.notes))?,
+                ));
+            }
+            encoded_batch.push(encoded);
+        }
         let tx: Transaction<'_> = self
             .conn
             .transaction()
             .map_err(sqlite("begin step commit"))?;
-        let kind: Option<String> = tx
-            .query_row("SELECT kind FROM steps WHERE idx = ?1", [step], |row| {
-                row.get(0)
+        for ((record, rows), encoded) in batch.iter().zip(&encoded_batch) {
+            let (record, rows) = (*record, *rows);
+            let step = to_i64(record.step);
+            let kind: Option<String> = tx
+                .prepare_cached("SELECT kind FROM steps WHERE idx = ?1")
+                .and_then(|mut q| q.query_row([step], |row| row.get(0)))
+                .optional()
+                .map_err(sqlite("read step row"))?;
+            match kind {
+                None => {
+                    return Err(StorageError::InvalidCommit {
+                        step: record.step,
+                        run: self.path.clone(),
+                        reason: "the plan has no such step".into(),
+                    });
+                }
+                Some(kind) if kind != record.kind => {
+                    tracing::warn!(
+                        step = record.step,
+                        planned = kind,
+                        recorded = record.kind,
+                        "step kind differs from the plan"
+                    );
+                }
+                Some(_) => {}
+            }
+            tx.prepare_cached("DELETE FROM frames WHERE step = ?1")
+                .and_then(|mut q| q.execute([step]))
+                .map_err(sqlite("delete old frame rows"))?;
+            {
+                let mut insert = tx
+                    .prepare_cached(
+                        "INSERT OR REPLACE INTO frames (
+                            step, path, sha256, size_bytes, camera, kind, label, block,
+                            exposure_index, exposure_s, exposures_s, gain, trigger_id, axes_deg,
+                            lamps_on, laser_armed, laser_on, laser_colour_nm, laser_tilt_deg,
+                            laser_mount_deg, fixture, cart_mm, rig_time_s, wall_time_unix_s, width,
+                            height, bit_depth, saturated_samples, notes)
+                         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15,
+                            ?16, ?17, ?18, ?19, ?20, ?21, ?22, ?23, ?24, ?25, ?26, ?27, ?28, ?29)",
+                    )
+                    .map_err(sqlite("prepare frame insert"))?;
+                for (row, (exposures, axes, lamps, notes)) in rows.iter().zip(encoded.iter()) {
+                    let m = row.meta;
+                    let too_big = |what: &str| StorageError::InvalidFrame {
+                        name: row.path.clone(),
+                        reason: format!("{what} does not fit in SQLite's 63-bit integers"),
+                    };
+                    let trigger = m
+                        .trigger_id
+                        .map(|t| i64::try_from(t).map_err(|_| too_big("trigger id")))
+                        .transpose()?;
+                    let saturated = i64::try_from(m.saturated_samples)
+                        .map_err(|_| too_big("saturated_samples"))?;
+                    let size = i64::try_from(row.size_bytes).map_err(|_| too_big("file size"))?;
+                    insert
+                        .execute(params![
+                            step,
+                            row.path,
+                            row.sha256,
+                            size,
+                            m.camera,
+                            m.kind.as_str(),
+                            m.label,
+                            m.block,
+                            m.exposure_index.map(to_i64),
+                            m.exposure_s,
+                            exposures,
+                            m.gain,
+                            trigger,
+                            axes,
+                            lamps,
+                            m.laser_armed,
+                            m.laser_on,
+                            m.laser_colour_nm,
+                            m.laser_tilt_deg,
+                            m.laser_mount_deg,
+                            m.fixture,
+                            m.cart_mm,
+                            m.rig_time_s,
+                            m.wall_time_unix_s,
+                            m.width,
+                            m.height,
+                            m.bit_depth,
+                            saturated,
+                            notes,
+                        ])
+                        .map_err(sqlite("insert frame row"))?;
+                }
+            }
+            tx.prepare_cached(
+                "UPDATE steps SET status = 'done', kind = ?2, block = ?3, rig_time_start_s = ?4,
+                    rig_time_end_s = ?5, wall_time_unix_s = ?6 WHERE idx = ?1",
+            )
+            .and_then(|mut q| {
+                q.execute(params![
+                    step,
+                    record.kind,
+                    record.block,
+                    record.rig_time_start_s,
+                    record.rig_time_end_s,
+                    record.wall_time_unix_s
+                ])
             })
-            .optional()
-            .map_err(sqlite("read step row"))?;
-        match kind {
-            None => {
-                return Err(StorageError::InvalidCommit {
-                    step: record.step,
-                    run: self.path.clone(),
-                    reason: "the plan has no such step".into(),
-                });
-            }
-            Some(kind) if kind != record.kind => {
-                tracing::warn!(
-                    step = record.step,
-                    planned = kind,
-                    recorded = record.kind,
-                    "step kind differs from the plan"
-                );
-            }
-            Some(_) => {}
+            .map_err(sqlite("mark step done"))?;
         }
-        tx.execute("DELETE FROM frames WHERE step = ?1", [step])
-            .map_err(sqlite("delete old frame rows"))?;
-        {
-            let mut insert = tx
-                .prepare_cached(
-                    "INSERT OR REPLACE INTO frames (
-                        step, path, sha256, size_bytes, camera, kind, label, block,
-                        exposure_index, exposure_s, exposures_s, gain, trigger_id, axes_deg,
-                        lamps_on, laser_armed, laser_on, laser_colour_nm, laser_tilt_deg,
-                        laser_mount_deg, fixture, cart_mm, rig_time_s, wall_time_unix_s, width,
-                        height, bit_depth, saturated_samples, notes)
-                     VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15,
-                        ?16, ?17, ?18, ?19, ?20, ?21, ?22, ?23, ?24, ?25, ?26, ?27, ?28, ?29)",
-                )
-                .map_err(sqlite("prepare frame insert"))?;
-            for (row, (exposures, axes, lamps, notes)) in rows.iter().zip(&encoded) {
-                let m = row.meta;
-                let too_big = |what: &str| StorageError::InvalidFrame {
-                    name: row.path.clone(),
-                    reason: format!("{what} does not fit in SQLite's 63-bit integers"),
-                };
-                let trigger = m
-                    .trigger_id
-                    .map(|t| i64::try_from(t).map_err(|_| too_big("trigger id")))
-                    .transpose()?;
-                let saturated =
-                    i64::try_from(m.saturated_samples).map_err(|_| too_big("saturated_samples"))?;
-                let size = i64::try_from(row.size_bytes).map_err(|_| too_big("file size"))?;
-                insert
-                    .execute(params![
-                        step,
-                        row.path,
-                        row.sha256,
-                        size,
-                        m.camera,
-                        m.kind.as_str(),
-                        m.label,
-                        m.block,
-                        m.exposure_index.map(to_i64),
-                        m.exposure_s,
-                        exposures,
-                        m.gain,
-                        trigger,
-                        axes,
-                        lamps,
-                        m.laser_armed,
-                        m.laser_on,
-                        m.laser_colour_nm,
-                        m.laser_tilt_deg,
-                        m.laser_mount_deg,
-                        m.fixture,
-                        m.cart_mm,
-                        m.rig_time_s,
-                        m.wall_time_unix_s,
-                        m.width,
-                        m.height,
-                        m.bit_depth,
-                        saturated,
-                        notes,
-                    ])
-                    .map_err(sqlite("insert frame row"))?;
-            }
-        }
-        tx.execute(
-            "UPDATE steps SET status = 'done', kind = ?2, block = ?3, rig_time_start_s = ?4,
-                rig_time_end_s = ?5, wall_time_unix_s = ?6 WHERE idx = ?1",
-            params![
-                step,
-                record.kind,
-                record.block,
-                record.rig_time_start_s,
-                record.rig_time_end_s,
-                record.wall_time_unix_s
-            ],
-        )
-        .map_err(sqlite("mark step done"))?;
         tx.execute("UPDATE runs SET updated_unix_s = ?1", [now_unix_s()])
             .map_err(sqlite("touch run row"))?;
-        tx.commit().map_err(sqlite("commit step"))
+        tx.commit().map_err(sqlite("commit steps"))
     }
 
     /// Frame rows, of one step or all, ordered by step and path.

@@ -300,19 +300,44 @@ impl RunStore {
         record: &StepRecord,
         frames: Vec<FrameToWrite>,
     ) -> Result<Vec<PathBuf>> {
-        let written = self.write_frames(record.step, &frames)?;
-        let rows: Vec<NewFrameRow<'_>> = written
+        let written = self.commit_steps(vec![(record.clone(), frames)])?;
+        tracing::debug!(step = record.step, frames = written.len(), "step committed");
+        Ok(written)
+    }
+
+    /// Makes several steps durable at once: writes every frame of every step first, then marks
+    /// them all done in ONE transaction. The writer uses it to journal a run of frameless steps
+    /// (moves, lamp switches) with one fsync instead of one each. Returns the written files.
+    pub fn commit_steps(
+        &mut self,
+        batch: Vec<(StepRecord, Vec<FrameToWrite>)>,
+    ) -> Result<Vec<PathBuf>> {
+        let mut written = Vec::with_capacity(batch.len());
+        for (record, frames) in &batch {
+            written.push(self.write_frames(record.step, frames)?);
+        }
+        let rows: Vec<Vec<NewFrameRow<'_>>> = batch
             .iter()
-            .map(|w| NewFrameRow {
-                path: w.rel_path.clone(),
-                sha256: w.sha256.clone(),
-                size_bytes: w.size_bytes,
-                meta: &frames[w.position].meta,
+            .zip(&written)
+            .map(|((_, frames), files)| {
+                files
+                    .iter()
+                    .map(|w| NewFrameRow {
+                        path: w.rel_path.clone(),
+                        sha256: w.sha256.clone(),
+                        size_bytes: w.size_bytes,
+                        meta: &frames[w.position].meta,
+                    })
+                    .collect()
             })
             .collect();
-        self.index.commit_step(record, &rows)?;
-        tracing::debug!(step = record.step, frames = written.len(), "step committed");
-        Ok(written.into_iter().map(|w| w.path).collect())
+        let steps: Vec<(&StepRecord, &[NewFrameRow<'_>])> = batch
+            .iter()
+            .zip(&rows)
+            .map(|((record, _), r)| (record, r.as_slice()))
+            .collect();
+        self.index.commit_steps(&steps)?;
+        Ok(written.into_iter().flatten().map(|w| w.path).collect())
     }
 
     /// Validates, encodes and durably writes the frames of `step` (files only, no index rows):

@@ -49,7 +49,7 @@ struct Dda {
 }
 
 impl Dda {
-    #[inline]
+    #[inline(always)]
     fn new(ray: &GridRay, t0: f32, t1: f32, size: f32, range: [i64; 4]) -> Dda {
         let inv_size = 1.0 / size;
         let axis = |p0: f32, dp: f32, inv: f32, lo: i64, hi: i64| {
@@ -112,8 +112,6 @@ pub struct HeightGrid {
     cell_max: Vec<f32>,
     /// Highest vertex of each BLOCK × BLOCK block of cells, nb × nb.
     block_max: Vec<f32>,
-    /// Lowest vertex of each block.
-    block_min: Vec<f32>,
     nb: usize,
     zmin: f32,
     zmax: f32,
@@ -187,22 +185,19 @@ impl HeightGrid {
             })
             .reduce(|| 0.0, f32::max);
         let nb = n.div_ceil(BLOCK);
-        let block_range: Vec<(f32, f32)> = (0..nb * nb)
+        let block_max: Vec<f32> = (0..nb * nb)
             .into_par_iter()
             .map(|k| {
                 let (bi, bj) = (k % nb, k / nb);
-                let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-                for j in bj * BLOCK..=((bj + 1) * BLOCK).min(n) {
-                    for i in bi * BLOCK..=((bi + 1) * BLOCK).min(n) {
-                        lo = lo.min(heights[j * w + i]);
-                        hi = hi.max(heights[j * w + i]);
+                let mut best = f32::NEG_INFINITY;
+                for j in bj * BLOCK..((bj + 1) * BLOCK).min(n) {
+                    for i in bi * BLOCK..((bi + 1) * BLOCK).min(n) {
+                        best = best.max(level0[j * n + i]);
                     }
                 }
-                (lo, hi)
+                best
             })
             .collect();
-        let block_max = block_range.iter().map(|r| r.1).collect();
-        let block_min = block_range.iter().map(|r| r.0).collect();
         // The box reaches down to the turntable (z = 0) so rays meet the sample's sides.
         // The box reaches down to the turntable (z = 0) so rays meet the sample's sides.
         let zmin = heights.iter().copied().fold(0.0, f32::min);
@@ -221,7 +216,6 @@ impl HeightGrid {
             grads,
             cell_max: level0,
             block_max,
-            block_min,
             nb,
             zmin,
             zmax,
@@ -250,48 +244,23 @@ impl HeightGrid {
         self.edge_max
     }
 
-    /// Blocks per side of the coarse max grid.
-    pub fn blocks(&self) -> usize {
-        self.nb
+    /// Position and shading normal of vertex (i, j).
+    pub fn vertex(&self, i: usize, j: usize) -> (Vec3A, Vec3A) {
+        let w = self.n + 1;
+        let k = j * w + i;
+        let [gx, gy] = self.grads[k];
+        let p = Vec3A::new(
+            self.origin + i as f32 * self.cell,
+            self.origin + j as f32 * self.cell,
+            self.heights[k],
+        );
+        (p, Vec3A::new(-gx, -gy, 1.0).normalize_or(Vec3A::Z))
     }
 
-    /// Edge of a block in mm.
-    pub fn block_mm(&self) -> f32 {
-        BLOCK as f32 * self.cell
-    }
-
-    /// Centre (x, y) of block (bi, bj) in mm.
-    pub fn block_centre(&self, bi: usize, bj: usize) -> (f32, f32) {
-        let half = 0.5 * self.block_mm();
-        (
-            self.origin + bi as f32 * self.block_mm() + half,
-            self.origin + bj as f32 * self.block_mm() + half,
-        )
-    }
-
-    /// Lowest and highest vertex of block (bi, bj).
-    pub fn block_range(&self, bi: usize, bj: usize) -> (f32, f32) {
-        let k = bj * self.nb + bi;
-        (self.block_min[k], self.block_max[k])
-    }
-
-    /// Lowest vertex of the block with index `k` (as returned by `block_of`).
+    /// Cell (i, j) containing (x, y), clamped to the grid, and the fractional position in it.
     #[inline]
-    pub fn block_min_at(&self, k: usize) -> f32 {
-        self.block_min[k]
-    }
-
-    /// Index (bj·blocks + bi) of the block under (x, y), if it is on the grid.
-    #[inline]
-    pub fn block_of(&self, x: f32, y: f32) -> Option<usize> {
-        let size = self.block_mm();
-        let (u, v) = ((x - self.origin) / size, (y - self.origin) / size);
-        let nb = self.nb as f32;
-        if u >= 0.0 && v >= 0.0 && u < nb && v < nb {
-            Some(v as usize * self.nb + u as usize)
-        } else {
-            None
-        }
+    pub fn bilinear(&self, x: f32, y: f32) -> (usize, usize, f32, f32) {
+        self.local(x, y)
     }
 
     fn local(&self, x: f32, y: f32) -> (usize, usize, f32, f32) {

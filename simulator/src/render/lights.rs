@@ -124,12 +124,9 @@ impl TubeBody {
             return None;
         }
         let sq = disc.sqrt();
-        for t in [(-b - sq) / (2.0 * a), (-b + sq) / (2.0 * a)] {
-            if t > 0.0 && self.axis.dot(w + d * t).abs() <= 0.5 * TUBE_LENGTH_MM {
-                return Some(t);
-            }
-        }
-        None
+        [(-b - sq) / (2.0 * a), (-b + sq) / (2.0 * a)]
+            .into_iter()
+            .find(|&t| t > 0.0 && self.axis.dot(w + d * t).abs() <= 0.5 * TUBE_LENGTH_MM)
     }
 }
 

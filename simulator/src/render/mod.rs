@@ -7,9 +7,15 @@
 //! reasons go into the frame notes.
 //!
 //! One concept per file: [`sample`] (procedural samples), [`heightfield`] (relief and ray
-//! marching), [`shadow`] (blocks surely lit, to skip shadow rays), [`geometry`] (poses), [`lights`], [`laser`], [`shading`] (BRDF), [`scene`]
-//! (intersection and direct lighting), [`effects`] (the plan), [`sensor`], [`quality`],
-//! [`rng`] (counter-based noise) and [`error`].
+//! marching), [`shadow`] (per-vertex light visibility for preview), [`geometry`] (poses),
+//! [`lights`], [`laser`], [`shading`] (BRDF), [`scene`] (intersection and direct
+//! lighting), [`effects`] (the plan), [`sensor`], [`quality`], [`rng`] (counter-based
+//! noise) and [`error`].
+//!
+//! Rows are rendered in parallel on the global rayon pool. Built samples and preview
+//! visibility maps are cached in the [`Renderer`]; a camera that needs one being built by
+//! another waits for it, so call `render` either from ordinary threads (as the simulated
+//! cameras do) or from inside the rayon pool, not from both at once.
 
 pub mod effects;
 pub mod error;
@@ -45,13 +51,15 @@ use sensor::Sensor;
 /// Largest sample edge accepted, in mm (the turntable is 400 mm across).
 const MAX_SAMPLE_SIZE_MM: f64 = 1000.0;
 
-/// The frame renderer for one rig. Cheap to share: cameras hold it in an `Arc` and render
-/// concurrently; built samples are cached per fixture name.
+/// The frame renderer for one rig. `Send + Sync`: cameras share it in an `Arc` and render
+/// concurrently; built samples (per fixture) and preview shadow maps (per fixture and light
+/// position) are cached inside.
 #[derive(Debug)]
 pub struct Renderer {
     rig: RigSpec,
     quality: Quality,
     samples: Mutex<HashMap<String, Arc<Sample>>>,
+    visibility: shadow::VisibilityCache,
 }
 
 /// One rendered frame.
@@ -77,6 +85,7 @@ impl Renderer {
             rig: rig.clone(),
             quality,
             samples: Mutex::new(HashMap::new()),
+            visibility: shadow::VisibilityCache::default(),
         })
     }
 
@@ -163,11 +172,24 @@ impl Renderer {
             quality: self.quality,
         };
         let tubes = lights::tube_bodies(&self.rig, world, to_sample);
-        let scene = Scene::new(&sample, lights, laser.map(|l| l.0), tubes, shading);
+        // Light is integrated only for a positive exposure with something emitting; dark
+        // frames skip tracing and the shadow maps.
+        let lit = exposure_s > 0.0 && (!lights.is_empty() || laser.is_some());
+        let visibility = |light| {
+            let grid = sample.grid.as_ref().filter(|_| lit)?;
+            Some(self.visibility.get(&sample.name, grid, light))
+        };
+        let scene = Scene::new(
+            &sample,
+            lights,
+            laser.map(|l| l.0),
+            tubes,
+            shading,
+            &visibility,
+        );
         let sensor = Sensor::new(cam.bit_depth, exposure_s, gain, noise_seed);
         let width = cam.width as usize;
         let mut pixels = vec![0u16; width * cam.height as usize * 3];
-        let lit = exposure_s > 0.0 && scene.has_light();
         let shadow_rays: u64 = pixels
             .par_chunks_mut(width * 3)
             .enumerate()
@@ -247,7 +269,7 @@ impl Renderer {
                 "light_integrated": n.lit,
             },
             "black_level_dn": black,
-            "stats": { "shadow_rays": n.shadow_rays, "surely_lit_blocks": n.scene.lit_blocks() },
+            "stats": { "shadow_rays": n.shadow_rays, "visibility_maps": n.scene.visibility_maps() },
         });
         if !n.unknown_lamps.is_empty() {
             notes["ignored_lamps"] = json!(n.unknown_lamps);

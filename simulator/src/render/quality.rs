@@ -57,8 +57,8 @@ impl Quality {
         }
     }
 
-    /// Spacing of the relief grid in mm: preview trades fine relief for speed (materials
-    /// keep their 0.1 mm texels at every quality).
+    /// Spacing of the relief grid and material texels in mm: preview trades detail finer
+    /// than two camera pixels for speed.
     pub fn relief_mm(self) -> f32 {
         match self {
             Quality::Preview => 0.2,

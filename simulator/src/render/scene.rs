@@ -1,5 +1,7 @@
 //! What a camera ray hits (sample relief, turntable, the tube) and the light it carries back:
-//! direct lighting from every lit source, with shadow rays only when the plan calls for them.
+//! direct lighting from every lit source, shadowed only when the plan calls for it.
+
+use std::sync::Arc;
 
 use glam::Vec3A;
 
@@ -10,12 +12,10 @@ use super::quality::Quality;
 use super::rng::{hash3, unit_f32};
 use super::sample::{Material, Sample};
 use super::shading::brdf;
-use super::shadow::LitMask;
+use super::shadow::{VertexVisibility, shadow_origin};
 
 /// The dark grey turntable around the sample.
 const TURNTABLE: Material = Material::grey(0.05);
-/// Shadow-ray origins are pushed this far off the surface along the normal.
-const SHADOW_OFFSET_MM: f32 = 0.02;
 /// Key for sub-pixel and light-sample jitter: fixed, so only the sensor noise depends on the
 /// caller's seed.
 const JITTER_KEY: u64 = 0x5a3e_11c0_77aa_0001;
@@ -29,6 +29,8 @@ pub struct Hit {
     pub n: Vec3A,
     /// Reflectance there.
     pub material: Material,
+    /// On the top of the sample's relief grid (not its sides, not the turntable).
+    pub on_relief: bool,
 }
 
 /// The rays through the neighbouring sub-pixel samples, for filtering sub-pixel detail.
@@ -44,6 +46,17 @@ pub struct Footprint {
     pub angle: f32,
 }
 
+/// Settings that decide how a frame is shaded.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Shading {
+    /// Shadow the lights (the effect plan's decision).
+    pub shadows: bool,
+    /// Evaluate the Ward lobe.
+    pub specular: bool,
+    /// Sampling preset.
+    pub quality: Quality,
+}
+
 /// Everything needed to shade one frame, fixed for the frame.
 #[derive(Debug)]
 pub struct Scene<'a> {
@@ -54,77 +67,52 @@ pub struct Scene<'a> {
     shadows: bool,
     specular: bool,
     quality: Quality,
-    /// Per light, per light stratum: blocks surely lit (empty unless shadows are on).
-    masks: Vec<Vec<LitMask>>,
-    laser_mask: Option<LitMask>,
-}
-
-/// Settings that decide how a frame is shaded.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Shading {
-    /// Cast shadow rays (the effect plan's decision).
-    pub shadows: bool,
-    /// Evaluate the Ward lobe.
-    pub specular: bool,
-    /// Sampling preset.
-    pub quality: Quality,
+    /// Per light, per light stratum: vertex visibility maps (preview with shadows on).
+    maps: Vec<Vec<Arc<VertexVisibility>>>,
+    laser_map: Option<Arc<VertexVisibility>>,
 }
 
 impl<'a> Scene<'a> {
-    /// A scene; with shadows on, precomputes which sample blocks each light region surely
-    /// lights so their points skip the march.
+    /// A scene. With shadows on at preview quality, every light sample sits at a fixed point
+    /// and `visibility` supplies (usually from a cache) that point's per-vertex visibility.
     pub fn new(
         sample: &'a Sample,
         lights: Vec<Light>,
         laser: Option<LaserSheet>,
         tubes: Vec<TubeBody>,
         shading: Shading,
+        visibility: &dyn Fn(Vec3A) -> Option<Arc<VertexVisibility>>,
     ) -> Scene<'a> {
         let Shading {
             shadows,
             specular,
             quality,
         } = shading;
-        let grid = sample.grid.as_ref().filter(|_| shadows);
-        let masks = lights
+        let use_maps = shadows && sample.grid.is_some() && quality == Quality::Preview;
+        let maps = lights
             .iter()
-            .map(|light| match (grid, light.emitter) {
-                (Some(g), Emitter::Halogen { centre, .. }) => {
-                    let radius = if quality.halogen_samples() > 1 {
-                        HALOGEN_RADIUS_MM
-                    } else {
-                        0.0
-                    };
-                    vec![LitMask::new(g, centre, radius)]
-                }
-                (
-                    Some(g),
-                    Emitter::Tube {
-                        start,
-                        axis,
-                        length,
-                        ..
-                    },
-                ) => {
+            .map(|light| match light.emitter {
+                _ if !use_maps => Vec::new(),
+                Emitter::Halogen { centre, .. } => visibility(centre).into_iter().collect(),
+                Emitter::Tube {
+                    start,
+                    axis,
+                    length,
+                    ..
+                } => {
                     let n = quality.tube_samples();
                     let stratum = length / n as f32;
                     (0..n)
-                        .map(|k| {
-                            LitMask::new(
-                                g,
-                                start + axis * (stratum * (k as f32 + 0.5)),
-                                0.5 * stratum,
-                            )
-                        })
+                        .filter_map(|k| visibility(start + axis * (stratum * (k as f32 + 0.5))))
                         .collect()
                 }
-                _ => Vec::new(),
+                Emitter::Backlight { .. } => Vec::new(),
             })
             .collect();
-        let laser_mask = match (grid, &laser) {
-            (Some(g), Some(sheet)) => Some(LitMask::new(g, sheet.origin, 0.0)),
-            _ => None,
-        };
+        let laser_map = laser
+            .as_ref()
+            .filter(|_| use_maps)
+            .and_then(|sheet| visibility(sheet.origin));
         Scene {
             sample,
             lights,
@@ -133,8 +121,8 @@ impl<'a> Scene<'a> {
             shadows,
             specular,
             quality,
-            masks,
-            laser_mask,
+            maps,
+            laser_map,
         }
     }
 
@@ -143,62 +131,56 @@ impl<'a> Scene<'a> {
         &self.lights
     }
 
-    /// Whether anything emits light this frame.
-    pub fn has_light(&self) -> bool {
-        !self.lights.is_empty() || self.laser.is_some()
-    }
-
-    /// Surely-lit blocks summed over every light region (for the notes).
-    pub fn lit_blocks(&self) -> usize {
-        self.masks
-            .iter()
-            .flatten()
-            .chain(self.laser_mask.iter())
-            .map(LitMask::lit_blocks)
-            .sum()
+    /// How many per-vertex visibility maps shade this frame.
+    pub fn visibility_maps(&self) -> usize {
+        self.maps.iter().map(Vec::len).sum::<usize>() + usize::from(self.laser_map.is_some())
     }
 
     /// The first surface along the unit ray o + t·d, or `None` for black (void, or the tube).
     pub fn intersect(&self, o: Vec3A, d: Vec3A) -> Option<Hit> {
         let mut hit = None;
-        if let Some(grid) = &self.sample.grid {
-            if let Some(h) = grid.first_hit(o, d, 0.0, f32::INFINITY) {
-                let p = o + d * h.t;
-                let n = h.wall.unwrap_or_else(|| grid.normal_at(p.x, p.y));
-                hit = Some((
-                    h.t,
-                    Hit {
-                        p,
-                        n,
-                        material: self.sample.material_at(p.x, p.y),
-                    },
-                ));
-            }
+        if let Some(grid) = &self.sample.grid
+            && let Some(h) = grid.first_hit(o, d, 0.0, f32::INFINITY)
+        {
+            let p = o + d * h.t;
+            let n = h.wall.unwrap_or_else(|| grid.normal_at(p.x, p.y));
+            let material = self.sample.material_at(p.x, p.y);
+            let on_relief = h.wall.is_none();
+            hit = Some((
+                h.t,
+                Hit {
+                    p,
+                    n,
+                    material,
+                    on_relief,
+                },
+            ));
         }
         if hit.is_none() && d.z < 0.0 {
             let t = -o.z / d.z;
             let p = o + d * t;
             if self.sample.contains(p.x, p.y) {
-                let n = self
-                    .sample
-                    .grid
-                    .as_ref()
-                    .map_or(Vec3A::Z, |g| g.normal_at(p.x, p.y));
+                let grid = self.sample.grid.as_ref();
+                let n = grid.map_or(Vec3A::Z, |g| g.normal_at(p.x, p.y));
+                let material = self.sample.material_at(p.x, p.y);
                 hit = Some((
                     t,
                     Hit {
                         p,
                         n,
-                        material: self.sample.material_at(p.x, p.y),
+                        material,
+                        on_relief: false,
                     },
                 ));
             } else if p.x * p.x + p.y * p.y <= TURNTABLE_RADIUS_MM * TURNTABLE_RADIUS_MM {
+                let material = TURNTABLE;
                 hit = Some((
                     t,
                     Hit {
                         p,
                         n: Vec3A::Z,
-                        material: TURNTABLE,
+                        material,
+                        on_relief: false,
                     },
                 ));
             }
@@ -214,28 +196,33 @@ impl<'a> Scene<'a> {
         Some(h)
     }
 
-    /// Whether the relief blocks the way from `p` (normal `n`) toward the unit direction `wi`
-    /// for `dist` mm; `mask` may vouch that the point is lit without marching. Counts the
-    /// rays marched in `rays`.
+    /// Fraction of the light from direction `wi`, `dist` mm away, that reaches `h`: from the
+    /// vertex visibility map for points on the relief when there is one, else by marching.
+    /// Counts the rays marched in `rays`.
     #[inline]
-    fn occluded(
+    fn visibility(
         &self,
-        p: Vec3A,
-        n: Vec3A,
+        h: &Hit,
         wi: Vec3A,
         dist: f32,
-        mask: Option<&LitMask>,
+        map: Option<&Arc<VertexVisibility>>,
         rays: &mut u64,
-    ) -> bool {
+    ) -> f32 {
+        if !self.shadows {
+            return 1.0;
+        }
         let Some(grid) = &self.sample.grid else {
-            return false;
+            return 1.0;
         };
-        if mask.is_some_and(|m| m.surely_lit(grid, p)) {
-            return false;
+        if let (Some(map), true) = (map, h.on_relief) {
+            return map.at(grid, h.p.x, h.p.y);
         }
         *rays += 1;
-        let o = p + n * SHADOW_OFFSET_MM + Vec3A::Z * (0.25 * SHADOW_OFFSET_MM);
-        grid.occluded(o, wi, 0.0, dist)
+        if grid.occluded(shadow_origin(h.p, h.n), wi, 0.0, dist) {
+            0.0
+        } else {
+            1.0
+        }
     }
 
     /// Radiance from a point light of intensity `intensity` at `q`, or zero if it is behind
@@ -247,24 +234,25 @@ impl<'a> Scene<'a> {
         wo: Vec3A,
         q: Vec3A,
         intensity: f32,
-        mask: Option<&LitMask>,
+        map: Option<&Arc<VertexVisibility>>,
         rays: &mut u64,
     ) -> Vec3A {
         let v = q - h.p;
         let r2 = v.length_squared();
-        if !(r2 > 1.0e-6) {
+        if r2.is_nan() || r2 <= 1.0e-6 {
             return Vec3A::ZERO;
         }
         let r = r2.sqrt();
         let wi = v / r;
         let cos_i = h.n.dot(wi);
-        if !(cos_i > 0.0) || intensity <= 0.0 {
+        if cos_i.is_nan() || cos_i <= 0.0 || intensity <= 0.0 {
             return Vec3A::ZERO;
         }
-        if self.shadows && self.occluded(h.p, h.n, wi, r, mask, rays) {
+        let visible = self.visibility(h, wi, r, map, rays);
+        if visible <= 0.0 {
             return Vec3A::ZERO;
         }
-        brdf(&h.material, h.n, wi, wo, self.specular) * (intensity * cos_i / r2)
+        brdf(&h.material, h.n, wi, wo, self.specular) * (visible * intensity * cos_i / r2)
     }
 
     /// Laser light reflected at `h` toward `wo`: the sheet's profile averaged over the pixel
@@ -297,9 +285,11 @@ impl<'a> Scene<'a> {
         // A box of width g has variance g²/12.
         let (e, wi, r) = sheet.irradiance(h.p, (gx * gx + gy * gy) / 12.0);
         let cos_i = h.n.dot(wi);
-        if !(e > 1.0e-4 && cos_i > 0.0)
-            || (self.shadows && self.occluded(h.p, h.n, wi, r, self.laser_mask.as_ref(), rays))
-        {
+        if e.is_nan() || e <= 1.0e-4 || cos_i.is_nan() || cos_i <= 0.0 {
+            return Vec3A::ZERO;
+        }
+        let visible = self.visibility(h, wi, r, self.laser_map.as_ref(), rays);
+        if visible <= 0.0 {
             return Vec3A::ZERO;
         }
         let m = &h.material;
@@ -307,7 +297,8 @@ impl<'a> Scene<'a> {
             albedo: Vec3A::splat(m.albedo.dot(sheet.reflect_weights)),
             ..*m
         };
-        sheet.camera_rgb * (e * cos_i * brdf(&mono, h.n, wi, wo, self.specular).x)
+        let f = brdf(&mono, h.n, wi, wo, self.specular).x;
+        sheet.camera_rgb * (visible * e * cos_i * f)
     }
 
     /// Radiance leaving `h` toward `wo` for sub-pixel sample `sub` of pixel `pixel`.
@@ -324,13 +315,10 @@ impl<'a> Scene<'a> {
         let mut total = Vec3A::ZERO;
         for (li, light) in self.lights.iter().enumerate() {
             let key = |stratum: u32, dim: u64| {
-                unit_f32(hash3(
-                    JITTER_KEY,
-                    pixel,
-                    (li as u64) << 32 | stratum as u64,
-                    dim,
-                ))
+                let counter = (li as u64) << 32 | stratum as u64;
+                unit_f32(hash3(JITTER_KEY, pixel, counter, dim))
             };
+            let maps = self.maps.get(li);
             match light.emitter {
                 Emitter::Halogen {
                     centre,
@@ -339,14 +327,13 @@ impl<'a> Scene<'a> {
                     intensity,
                 } => {
                     let n = self.quality.halogen_samples();
+                    let map = maps.and_then(|m| m.first());
                     if n <= 1 {
-                        let mask = self.masks[li].first();
-                        total += light.rgb * self.point_light(h, wo, centre, intensity, mask, rays);
+                        total += light.rgb * self.point_light(h, wo, centre, intensity, map, rays);
                         continue;
                     }
                     let per = (n / spp).max(1);
                     let side = (n as f32).sqrt().round().max(1.0) as u32;
-                    let mask = self.masks[li].first();
                     let mut sum = Vec3A::ZERO;
                     for m in 0..per {
                         let s = (sub + spp * m) % n;
@@ -354,7 +341,7 @@ impl<'a> Scene<'a> {
                         let radius = HALOGEN_RADIUS_MM * ((a + key(s, 0)) / side as f32).sqrt();
                         let phi = std::f32::consts::TAU * (b + key(s, 1)) / side as f32;
                         let q = centre + u * (radius * phi.cos()) + v * (radius * phi.sin());
-                        sum += self.point_light(h, wo, q, intensity / per as f32, mask, rays);
+                        sum += self.point_light(h, wo, q, intensity / per as f32, None, rays);
                     }
                     total += light.rgb * sum;
                 }
@@ -374,15 +361,9 @@ impl<'a> Scene<'a> {
                         // Tape on the tube's sides: it emits downward, Lambert about −z.
                         let to_p = h.p - q;
                         let emit = (-to_p.z / to_p.length().max(1.0e-6)).max(0.0);
-                        let mask = self.masks[li].get(s as usize);
-                        sum += self.point_light(
-                            h,
-                            wo,
-                            q,
-                            per_mm * length / per as f32 * emit,
-                            mask,
-                            rays,
-                        );
+                        let intensity = per_mm * length / per as f32 * emit;
+                        let map = maps.and_then(|m| m.get(s as usize));
+                        sum += self.point_light(h, wo, q, intensity, map, rays);
                     }
                     total += light.rgb * sum;
                 }
@@ -401,6 +382,7 @@ impl<'a> Scene<'a> {
     pub fn pixel(&self, pose: &CameraPose, x: u32, y: u32, rays: &mut u64) -> Vec3A {
         let side = self.quality.grid_side();
         let pixel = y as u64 * pose.width as u64 + x as u64;
+        let step = 1.0 / side as f32;
         let mut sum = Vec3A::ZERO;
         for sub in 0..side * side {
             let (jx, jy) = if side == 1 {
@@ -409,28 +391,28 @@ impl<'a> Scene<'a> {
                 let h = hash3(JITTER_KEY, pixel, sub as u64, 7);
                 (unit_f32(h), unit_f32(h.rotate_left(24)))
             };
-            let px = x as f32 + ((sub % side) as f32 + jx) / side as f32;
-            let py = y as f32 + ((sub / side) as f32 + jy) / side as f32;
+            let px = x as f32 + ((sub % side) as f32 + jx) * step;
+            let py = y as f32 + ((sub / side) as f32 + jy) * step;
             let d = pose.ray(px, py);
-            if let Some(h) = self.intersect(pose.origin, d) {
-                let step = 1.0 / side as f32;
-                let footprint = if self.laser.is_some() {
-                    Footprint {
-                        origin: pose.origin,
-                        dx: pose.ray(px + step, py),
-                        dy: pose.ray(px, py + step),
-                        angle: step / pose.focal_px,
-                    }
-                } else {
-                    Footprint {
-                        origin: pose.origin,
-                        dx: d,
-                        dy: d,
-                        angle: 0.0,
-                    }
-                };
-                sum += self.shade(&h, -d, &footprint, sub, pixel, rays);
-            }
+            let Some(h) = self.intersect(pose.origin, d) else {
+                continue;
+            };
+            let footprint = if self.laser.is_some() {
+                Footprint {
+                    origin: pose.origin,
+                    dx: pose.ray(px + step, py),
+                    dy: pose.ray(px, py + step),
+                    angle: step / pose.focal_px,
+                }
+            } else {
+                Footprint {
+                    origin: pose.origin,
+                    dx: d,
+                    dy: d,
+                    angle: 0.0,
+                }
+            };
+            sum += self.shade(&h, -d, &footprint, sub, pixel, rays);
         }
         sum / (side * side) as f32
     }

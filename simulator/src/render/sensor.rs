@@ -31,12 +31,14 @@ pub fn black_level_dn(bit_depth: u8) -> f64 {
 /// Conversion from scene radiance to digital numbers for one exposure.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sensor {
-    max_dn: f64,
-    black: f64,
-    electrons_per_radiance: f64,
-    dn_per_electron: f64,
-    read_sigma_dn: f64,
-    seed: u64,
+    max_dn: f32,
+    black: f32,
+    electrons_per_radiance: f32,
+    /// Fraction of full scale per electron (gain included).
+    fraction_per_electron: f32,
+    read_sigma_dn: f32,
+    /// The noise seed, pre-mixed once per frame.
+    key: u64,
 }
 
 impl Sensor {
@@ -48,38 +50,38 @@ impl Sensor {
         let per_radiance_second =
             std::f64::consts::PI * REFERENCE_FILL * FULL_WELL_E / REFERENCE_EXPOSURE_S;
         Sensor {
-            max_dn: max,
-            black: black_level_dn(bit_depth),
-            electrons_per_radiance: per_radiance_second * exposure_s.max(0.0),
-            dn_per_electron: gain * max / FULL_WELL_E,
-            read_sigma_dn: READ_NOISE_DN_12BIT * gain * max / 4095.0,
-            seed,
+            max_dn: max as f32,
+            black: black_level_dn(bit_depth) as f32,
+            electrons_per_radiance: (per_radiance_second * exposure_s.max(0.0)) as f32,
+            fraction_per_electron: (gain / FULL_WELL_E) as f32,
+            read_sigma_dn: (READ_NOISE_DN_12BIT * gain * max / 4095.0) as f32,
+            key: hash3(seed, 0x5e45_0e00, 0, 0),
         }
     }
 
     /// Black level in DN.
     pub fn black_dn(&self) -> f64 {
-        self.black
+        self.black as f64
     }
 
     /// Mean electrons collected from `radiance` (before noise and clipping).
-    pub fn electrons(&self, radiance: f32) -> f64 {
-        (radiance as f64 * self.electrons_per_radiance).max(0.0)
+    pub fn electrons(&self, radiance: f32) -> f32 {
+        (radiance * self.electrons_per_radiance).max(0.0)
     }
 
     /// The digital numbers of pixel `pixel` for RGB `radiance`. The noise is a pure function
     /// of (seed, pixel, channel): two 64-bit hashes per pixel, 12 bits per Gaussian draw.
     #[inline]
     pub fn digitise_rgb(&self, radiance: [f32; 3], pixel: u64) -> [u16; 3] {
-        let shot_bits = hash3(self.seed, pixel, 0, 0);
+        let shot_bits = mix64(self.key ^ pixel.wrapping_mul(0x9e37_79b9_7f4a_7c15));
         let read_bits = mix64(shot_bits ^ 0x27d4_eb2f_1656_67c5);
         let mut out = [0u16; 3];
         for (c, (o, &r)) in out.iter_mut().zip(radiance.iter()).enumerate() {
             let shift = GAUSS_BITS * c as u32;
             *o = self.digitise_with(
                 r,
-                gaussian(shot_bits >> shift),
-                gaussian(read_bits >> shift),
+                gaussian(shot_bits >> shift) as f32,
+                gaussian(read_bits >> shift) as f32,
             );
         }
         out
@@ -95,11 +97,12 @@ impl Sensor {
 
     /// One channel from its mean radiance and two standard normal deviates.
     #[inline]
-    fn digitise_with(&self, radiance: f32, shot: f64, read: f64) -> u16 {
+    fn digitise_with(&self, radiance: f32, shot: f32, read: f32) -> u16 {
+        const C: f32 = RESPONSE_CURVATURE as f32;
         let e = self.electrons(radiance);
-        let e = (e + shot * e.sqrt()).clamp(0.0, FULL_WELL_E);
-        let x = e * self.dn_per_electron / self.max_dn;
-        let y = x * (1.0 - RESPONSE_CURVATURE + RESPONSE_CURVATURE * x);
+        let e = (e + shot * e.sqrt()).clamp(0.0, FULL_WELL_E as f32);
+        let x = e * self.fraction_per_electron;
+        let y = x * (1.0 - C + C * x);
         let dn = y * self.max_dn + self.black + read * self.read_sigma_dn;
         // Round half up without a libm call: the clamped value is non-negative.
         (dn.clamp(0.0, self.max_dn) + 0.5) as u16

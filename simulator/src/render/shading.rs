@@ -18,12 +18,12 @@ const MIN_ALPHA: f32 = 1.0e-2;
 pub fn ward_lobe(n: Vec3A, wi: Vec3A, wo: Vec3A, alpha: f32) -> f32 {
     let cos_i = n.dot(wi);
     let cos_o = n.dot(wo);
-    if !(cos_i > 0.0 && cos_o > 0.0) {
+    if cos_i.is_nan() || cos_o.is_nan() || cos_i <= 0.0 || cos_o <= 0.0 {
         return 0.0;
     }
     let h = wi + wo;
     let len2 = h.length_squared();
-    if !(len2 > 1.0e-12) {
+    if len2.is_nan() || len2 <= 1.0e-12 {
         return 0.0;
     }
     let cos_d2 = {

@@ -1,126 +1,102 @@
-//! Shadows on a height field: which blocks of the sample are surely lit by a light region
-//! (so their points skip the shadow march), computed once per frame and light.
-//!
-//! A block B can only be shadowed by terrain inside the capsule between B and the light
-//! region, and only by terrain that rises above the lowest ray from B: from height
-//! min(B) climbing at the smallest slope any ray from B to the region can have. If no
-//! block's maximum rises above that, every point of B is lit, exactly as the march would
-//! find; otherwise its points are marched as usual.
+//! Shadows on a height field for preview frames: the visibility of a point light from every
+//! relief vertex, found by marching the height field toward the light once per vertex and
+//! interpolated bilinearly between vertices (a hard shadow, anti-aliased over one relief
+//! cell). The maps are cached per fixture and light position, so the cameras of one rig step
+//! share them. Higher qualities march one shadow ray per light sample instead.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, OnceLock};
 
 use glam::Vec3A;
+use rayon::prelude::*;
 
 use super::heightfield::HeightGrid;
 
-/// Per-block "surely lit" flags for one light region.
+/// How far shadow-ray origins are pushed off the surface along the normal, in mm.
+pub const SHADOW_OFFSET_MM: f32 = 0.02;
+/// Cached maps kept before the cache is emptied (each is one byte per relief vertex).
+const CACHE_CAPACITY: usize = 96;
+
+/// Start of a shadow ray from surface point `p` with normal `n`.
+#[inline]
+pub fn shadow_origin(p: Vec3A, n: Vec3A) -> Vec3A {
+    p + n * SHADOW_OFFSET_MM + Vec3A::Z * (0.25 * SHADOW_OFFSET_MM)
+}
+
+/// Visibility (0 or 1) of one point light from each relief vertex.
 #[derive(Debug, Clone, PartialEq)]
-pub struct LitMask {
-    lit: Vec<bool>,
+pub struct VertexVisibility {
+    lit: Vec<u8>,
 }
 
-impl LitMask {
-    /// Flags for the light region of centre `q` (sample frame) and radius `radius_mm`.
-    pub fn new(grid: &HeightGrid, q: Vec3A, radius_mm: f32) -> LitMask {
-        let nb = grid.blocks();
-        let lit = (0..nb * nb)
-            .map(|k| block_lit(grid, k % nb, k / nb, q, radius_mm))
+impl VertexVisibility {
+    /// Marches from every vertex of `grid` toward the point `light`.
+    pub fn compute(grid: &HeightGrid, light: Vec3A) -> VertexVisibility {
+        let w = grid.cells() + 1;
+        let lit = (0..w * w)
+            .into_par_iter()
+            .map(|k| {
+                let (p, n) = grid.vertex(k % w, k / w);
+                let o = shadow_origin(p, n);
+                let v = light - o;
+                let dist = v.length();
+                if dist.is_nan() || dist <= 0.0 {
+                    return 1;
+                }
+                let dir = v / dist;
+                if n.dot(dir) <= 0.0 || grid.occluded(o, dir, 0.0, dist) {
+                    0
+                } else {
+                    1
+                }
+            })
             .collect();
-        LitMask { lit }
+        VertexVisibility { lit }
     }
 
-    /// Whether the point (x, y, z) is surely lit: its block is flagged and the point is not
-    /// below the block's lowest vertex (points on the sample's sides can be). False off the
-    /// grid.
+    /// Interpolated visibility in [0, 1] at (x, y) on the grid.
     #[inline]
-    pub fn surely_lit(&self, grid: &HeightGrid, p: Vec3A) -> bool {
-        grid.block_of(p.x, p.y)
-            .is_some_and(|k| self.lit[k] && p.z >= grid.block_min_at(k))
-    }
-
-    /// How many blocks are surely lit.
-    pub fn lit_blocks(&self) -> usize {
-        self.lit.iter().filter(|&&l| l).count()
+    pub fn at(&self, grid: &HeightGrid, x: f32, y: f32) -> f32 {
+        let (i, j, a, b) = grid.bilinear(x, y);
+        let w = grid.cells() + 1;
+        let k = j * w + i;
+        let l = |idx: usize| self.lit[idx] as f32;
+        let top = l(k) + (l(k + 1) - l(k)) * a;
+        let bottom = l(k + w) + (l(k + w + 1) - l(k + w)) * a;
+        top + (bottom - top) * b
     }
 }
 
-fn block_lit(grid: &HeightGrid, bi: usize, bj: usize, q: Vec3A, rho: f32) -> bool {
-    let size = grid.block_mm();
-    let r_block = size * std::f32::consts::FRAC_1_SQRT_2;
-    let (cx, cy) = grid.block_centre(bi, bj);
-    let (zlo, _) = grid.block_range(bi, bj);
-    let to_light = glam::Vec2::new(q.x - cx, q.y - cy);
-    let reach = to_light.length();
-    // Smallest rise per horizontal mm of any ray from a point of B (height ≥ zlo) to the region.
-    let rise = (q.z - rho - zlo) / (reach + r_block + rho);
-    if !(rise > 0.0) {
-        return false;
-    }
-    let zmax = grid.zmax();
-    // Beyond this horizontal run every ray from B is above all terrain.
-    let run_end = (zmax - zlo) / rise + r_block;
-    if reach <= r_block + rho {
-        // The region is (nearly) overhead: the capsule degenerates; test the run around B.
-        return neighbourhood_lit(grid, cx, cy, run_end, zlo, rise, r_block);
-    }
-    let dir = to_light / reach;
-    let nb = grid.blocks() as i64;
-    let step = 0.5 * size;
-    let mut s = 0.0f32;
-    while s <= run_end.min(reach) + step {
-        let (mx, my) = (cx + dir.x * s, cy + dir.y * s);
-        // Lateral half-width of the capsule here, plus a block's reach and the step.
-        let half_width = r_block + rho * (s / reach) + r_block + step;
-        let lo_i = grid_index(grid, mx - half_width).max(0);
-        let hi_i = grid_index(grid, mx + half_width).min(nb - 1);
-        let lo_j = grid_index(grid, my - half_width).max(0);
-        let hi_j = grid_index(grid, my + half_width).min(nb - 1);
-        for xj in lo_j..=hi_j {
-            for xi in lo_i..=hi_i {
-                let (xc, yc) = grid.block_centre(xi as usize, xj as usize);
-                let (_, xmax) = grid.block_range(xi as usize, xj as usize);
-                if xmax <= zlo {
-                    continue;
-                }
-                // Least horizontal distance from a point of B to a point of X.
-                let dist = ((xc - cx).hypot(yc - cy) - 2.0 * r_block).max(0.0);
-                if xmax > zlo + dist * rise {
-                    return false;
-                }
+type Key = (String, usize, [i64; 3]);
+
+/// Visibility maps by fixture, relief resolution and light position (to 1 µm).
+#[derive(Debug, Default)]
+pub struct VisibilityCache {
+    maps: Mutex<HashMap<Key, Arc<OnceLock<Arc<VertexVisibility>>>>>,
+}
+
+impl VisibilityCache {
+    /// The map for `light` over the relief of `fixture`, computed at most once even when
+    /// several cameras ask at the same time.
+    pub fn get(&self, fixture: &str, grid: &HeightGrid, light: Vec3A) -> Arc<VertexVisibility> {
+        let q = |c: f32| (c as f64 * 1000.0).round() as i64;
+        let key = (
+            fixture.to_string(),
+            grid.cells(),
+            [q(light.x), q(light.y), q(light.z)],
+        );
+        let slot = {
+            let mut maps = self
+                .maps
+                .lock()
+                .unwrap_or_else(|poisoned| poisoned.into_inner());
+            if maps.len() >= CACHE_CAPACITY && !maps.contains_key(&key) {
+                maps.clear();
             }
-        }
-        s += step;
+            Arc::clone(maps.entry(key).or_default())
+        };
+        Arc::clone(slot.get_or_init(|| Arc::new(VertexVisibility::compute(grid, light))))
     }
-    true
-}
-
-fn neighbourhood_lit(
-    grid: &HeightGrid,
-    cx: f32,
-    cy: f32,
-    run: f32,
-    zlo: f32,
-    rise: f32,
-    r_block: f32,
-) -> bool {
-    let nb = grid.blocks() as i64;
-    let reach = run + r_block;
-    for xj in grid_index(grid, cy - reach).max(0)..=grid_index(grid, cy + reach).min(nb - 1) {
-        for xi in grid_index(grid, cx - reach).max(0)..=grid_index(grid, cx + reach).min(nb - 1) {
-            let (xc, yc) = grid.block_centre(xi as usize, xj as usize);
-            let (_, xmax) = grid.block_range(xi as usize, xj as usize);
-            let dist = ((xc - cx).hypot(yc - cy) - 2.0 * r_block).max(0.0);
-            if xmax > zlo + dist * rise {
-                return false;
-            }
-        }
-    }
-    true
-}
-
-/// Block index along one axis of the coordinate `c` in mm (may be out of range).
-fn grid_index(grid: &HeightGrid, c: f32) -> i64 {
-    let (x0, _) = grid.block_centre(0, 0);
-    let origin = x0 - 0.5 * grid.block_mm();
-    ((c - origin) / grid.block_mm()).floor() as i64
 }
 
 #[cfg(test)]
@@ -128,42 +104,19 @@ mod tests {
     use super::*;
 
     #[test]
-    fn surely_lit_blocks_are_never_shadowed() {
-        // A single tall bump: blocks far from it, or on its lit side, are surely lit; the
-        // march agrees for every point the mask calls lit.
-        let grid = HeightGrid::build(160, 32.0, |x, y| 4.0 * (-(x * x + y * y) / 6.0).exp());
-        for (q, rho) in [
-            (Vec3A::new(800.0, 0.0, 140.0), 0.0),
-            (Vec3A::new(-300.0, 500.0, 300.0), 10.0),
-            (Vec3A::new(5.0, 3.0, 60.0), 20.0),
-        ] {
-            let mask = LitMask::new(&grid, q, rho);
-            assert!(mask.lit_blocks() > 0, "some blocks are surely lit for {q}");
-            for k in 0..4000u64 {
-                let h = crate::render::rng::hash3(9, k, 0, 0);
-                let x = crate::render::rng::unit_f32(h) * 31.8 - 15.9;
-                let y = crate::render::rng::unit_f32(h.rotate_left(32)) * 31.8 - 15.9;
-                let p = Vec3A::new(x, y, grid.height_at(x, y));
-                if !mask.surely_lit(&grid, p) {
-                    continue;
-                }
-                let n = grid.normal_at(x, y);
-                // Any point of the light region.
-                let l = q + Vec3A::new(rho * 0.7, -rho * 0.7, 0.0)
-                    * crate::render::rng::unit_f32(h >> 7);
-                let v = l - p;
-                if n.dot(v) <= 0.0 {
-                    continue;
-                }
-                let o = p + n * 0.02 + Vec3A::Z * 0.005;
-                assert!(
-                    !grid.occluded(o, v.normalize(), 0.0, v.length()),
-                    "({x}, {y}) marked lit but shadowed by {q}"
-                );
-            }
-        }
-        // Low light from +x: the block just behind the bump (−x side) is not surely lit.
-        let mask = LitMask::new(&grid, Vec3A::new(800.0, 0.0, 50.0), 0.0);
-        assert!(!mask.surely_lit(&grid, Vec3A::new(-3.0, 0.0, grid.height_at(-3.0, 0.0))));
+    fn vertex_visibility_matches_marching_at_the_vertices() {
+        let grid = HeightGrid::build(64, 32.0, |x, y| 4.0 * (-(x * x + y * y) / 6.0).exp());
+        let light = Vec3A::new(800.0, 0.0, 100.0);
+        let vis = VertexVisibility::compute(&grid, light);
+        // Behind the bump (−x side), in its shadow; in front, lit; far away, lit.
+        assert_eq!(vis.at(&grid, -4.0, 0.0), 0.0);
+        assert_eq!(vis.at(&grid, 4.0, 0.0), 1.0);
+        assert_eq!(vis.at(&grid, -14.0, 12.0), 1.0);
+        // Between vertices the value is interpolated.
+        let cache = VisibilityCache::default();
+        let a = cache.get("bump", &grid, light);
+        let b = cache.get("bump", &grid, light + Vec3A::splat(1e-5));
+        assert!(Arc::ptr_eq(&a, &b), "the cache returns the same map");
+        assert_eq!(*a, vis);
     }
 }
