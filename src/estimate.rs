@@ -7,9 +7,9 @@
 //! fold over the steps on a rig clock that starts at 0 s.
 //!
 //! - **Start.** A run starts by homing every axis from the power-on state (every axis at 0°),
-//!   which takes 0 s, so a fresh estimate has no start-up cost. [`estimate_from`] starts from
-//!   the given [`RigState`] with no start-up cost either: re-establishing that state is the
-//!   executor's business. Lamps that are on in the start state count as switched on at 0 s
+//!   which costs the longest settling time. [`estimate_from`] also costs re-establishing the
+//!   given [`RigState`]: homing, then moving axes (in parallel) and the cart to where the
+//!   state has them. Lamps that are on in the start state count as switched on at that time
 //!   (the executor switches them on when it re-establishes the state), so their warm-up is
 //!   waited for again.
 //! - **Home{axes}.** All named axes home in parallel; each takes
@@ -289,7 +289,9 @@ pub fn estimate(plan: &Plan, rig: &RigSpec) -> Estimate {
 /// Costs the plan from step `from` on, starting in the rig state `start` (see the module doc
 /// for how a start state is treated). A `from` past the end gives an empty estimate.
 pub fn estimate_from(plan: &Plan, rig: &RigSpec, from: usize, start: &RigState) -> Estimate {
-    let mut run = Run::new(rig, start);
+    // Nothing to run, nothing to establish.
+    let establish = from < plan.steps.len();
+    let mut run = Run::new(rig, start, establish);
     let mut step_end_s = vec![0.0; plan.steps.len()];
     let mut steps = 0;
     for (i, step) in plan.steps.iter().enumerate().skip(from) {
@@ -309,6 +311,30 @@ pub fn estimate_from(plan: &Plan, rig: &RigSpec, from: usize, start: &RigState) 
         per_device: run.usage,
         step_end_s,
     }
+}
+
+/// Time the executor takes to establish `state` before the first step it runs: home every
+/// axis from the power-on position (0°, so only the settling time), then move the axes and
+/// the cart to where the state has them, all axes in parallel. Lamps come on at its end.
+fn establish_s(rig: &RigSpec, state: &RigState) -> f64 {
+    let homing = rig
+        .axes
+        .iter()
+        .map(|a| nonneg(a.settle_s))
+        .fold(0.0, f64::max);
+    let moves = rig
+        .axes
+        .iter()
+        .filter_map(|a| state.axes_deg.get(&a.id).map(|deg| (a, *deg)))
+        .filter(|(_, deg)| deg.is_finite() && *deg != 0.0)
+        .map(|(a, deg)| nonneg(stagehand_devices::axis::planned_move_s(a, 0.0, deg)))
+        .fold(0.0, f64::max);
+    let cart = rig
+        .cart
+        .as_ref()
+        .map(|c| travel_time(state.cart_mm.abs(), c.speed_mm_s))
+        .unwrap_or(0.0);
+    homing + moves + cart
 }
 
 /// `x` if it is a finite positive number, else 0.
@@ -347,7 +373,7 @@ struct Run<'a> {
 }
 
 impl<'a> Run<'a> {
-    fn new(rig: &'a RigSpec, start: &RigState) -> Self {
+    fn new(rig: &'a RigSpec, start: &RigState, establish: bool) -> Self {
         let state = start.sanitised(rig);
         let mut usage = BTreeMap::new();
         let mut add = |id: &str, kind| {
@@ -377,12 +403,17 @@ impl<'a> Run<'a> {
         if let Some(t) = &rig.trigger {
             add(&t.id, DeviceKind::Trigger);
         }
-        let lamp_on_since = state.lamps_on.iter().map(|id| (id.clone(), 0.0)).collect();
-        let laser_on_since = state.laser_on.then_some(0.0);
+        let now = if establish {
+            establish_s(rig, &state)
+        } else {
+            0.0
+        };
+        let lamp_on_since = state.lamps_on.iter().map(|id| (id.clone(), now)).collect();
+        let laser_on_since = state.laser_on.then_some(now);
         Self {
             rig,
             state,
-            now: 0.0,
+            now,
             lamp_on_since,
             laser_on_since,
             last_first_trigger: None,
@@ -694,6 +725,36 @@ mod tests {
 
     use super::test_rigs::{lightstage, reflectometer};
 
+    /// The estimate with the run-start homing taken out (it has its own test below), so the
+    /// hand-computed cases read as the steps' costs alone.
+    fn estimate(p: &Plan, rig: &RigSpec) -> Estimate {
+        let mut e = super::estimate(p, rig);
+        let start = if p.steps.is_empty() {
+            0.0
+        } else {
+            establish_s(rig, &RigState::power_on(rig))
+        };
+        e.rig_time_s -= start;
+        for t in &mut e.step_end_s {
+            *t -= start;
+        }
+        e
+    }
+
+    #[test]
+    fn a_run_starts_with_homing_and_a_resume_with_re_establishing() {
+        let rig = lightstage();
+        let settle = rig.axes.iter().map(|a| a.settle_s).fold(0.0, f64::max);
+        let one = plan(vec![Action::Wait { seconds: 0.0 }]);
+        assert_eq!(super::estimate(&one, &rig).rig_time_s, settle);
+        assert_eq!(super::estimate(&plan(vec![]), &rig).rig_time_s, 0.0);
+        let mut state = RigState::power_on(&rig);
+        state.axes_deg.insert("turntable".into(), 90.0);
+        let turntable = rig.axis("turntable").unwrap();
+        let expected = settle + stagehand_devices::axis::planned_move_s(turntable, 0.0, 90.0);
+        assert!((establish_s(&rig, &state) - expected).abs() < 1e-12);
+    }
+
     fn plan(actions: Vec<Action>) -> Plan {
         let steps = actions
             .into_iter()
@@ -996,14 +1057,19 @@ mod tests {
             capture(&[0.1], &["cam1"], false, 0.0),
             mv(&[("turntable", 0.0)]),
         ]);
-        let full = estimate(&p, &rig);
+        let full = super::estimate(&p, &rig);
         assert_eq!(estimate_from(&p, &rig, 0, &state_before(&p, &rig, 0)), full);
-        // From step 2 the lamp is on in the start state: its warm-up is waited for again.
-        let rest = estimate_from(&p, &rig, 2, &state_before(&p, &rig, 2));
+        // From step 2 the turntable is re-established at 90° and the lamp is on in the start
+        // state: its warm-up is waited for again after that.
+        let start = state_before(&p, &rig, 2);
+        let rest = estimate_from(&p, &rig, 2, &start);
         assert_eq!(rest.steps, 2);
         assert_eq!(rest.step_end_s.len(), 4);
         assert_eq!(rest.step_end_s[0], 0.0);
-        assert_close(rest.step_end_s[2], 0.8 + 0.1 + 1.0 / 15.0);
+        assert_close(
+            rest.step_end_s[2],
+            establish_s(&rig, &start) + 0.8 + 0.1 + 1.0 / 15.0,
+        );
         let down = full.step_end_s[3] - full.step_end_s[2];
         assert_close(rest.rig_time_s, rest.step_end_s[2] + down);
         assert_eq!(rest.captures, 1);

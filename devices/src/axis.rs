@@ -12,6 +12,7 @@ use tokio::sync::{mpsc, oneshot, watch};
 use crate::clock::duration_s;
 use crate::error::{DeviceError, DeviceResult};
 use crate::motion::{Trapezoid, move_duration_s};
+use crate::request::call;
 use crate::rig::AxisSpec;
 
 /// What a backend (simulated stepper, GRBL controller, ...) must do for one axis.
@@ -135,20 +136,7 @@ impl AxisHandle {
 
     /// Stops the axis now, interrupting a move in progress.
     pub async fn stop(&self) -> DeviceResult<f64> {
-        let (tx, rx) = oneshot::channel();
-        let gone = || DeviceError::Gone {
-            device: self.spec.id.clone(),
-        };
-        self.stop_tx.send(tx).await.map_err(|_| gone())?;
-        match tokio::time::timeout(duration_s(MARGIN_S), rx).await {
-            Ok(Ok(r)) => r,
-            Ok(Err(_)) => Err(gone()),
-            Err(_) => Err(DeviceError::Timeout {
-                device: self.spec.id.clone(),
-                request: "stop".into(),
-                timeout_s: MARGIN_S,
-            }),
-        }
+        call(&self.spec.id, &self.stop_tx, "stop", MARGIN_S, |tx| tx).await
     }
 
     async fn request(
@@ -157,20 +145,7 @@ impl AxisHandle {
         timeout_s: f64,
         make: impl FnOnce(oneshot::Sender<DeviceResult<f64>>) -> Cmd,
     ) -> DeviceResult<f64> {
-        let (tx, rx) = oneshot::channel();
-        let gone = || DeviceError::Gone {
-            device: self.spec.id.clone(),
-        };
-        self.tx.send(make(tx)).await.map_err(|_| gone())?;
-        match tokio::time::timeout(duration_s(timeout_s), rx).await {
-            Ok(Ok(r)) => r,
-            Ok(Err(_)) => Err(gone()),
-            Err(_) => Err(DeviceError::Timeout {
-                device: self.spec.id.clone(),
-                request: what.into(),
-                timeout_s,
-            }),
-        }
+        call(&self.spec.id, &self.tx, what, timeout_s, make).await
     }
 }
 

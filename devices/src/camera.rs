@@ -8,6 +8,7 @@ use tokio::sync::{mpsc, oneshot};
 use crate::clock::duration_s;
 use crate::error::{DeviceError, DeviceResult};
 use crate::frame::Frame;
+use crate::request::call;
 use crate::rig::CameraSpec;
 
 /// What a backend (simulated camera, V4L2, GenICam, gphoto2) must do.
@@ -80,25 +81,18 @@ impl CameraHandle {
                 max: s.max_gain,
             });
         }
-        let (tx, rx) = oneshot::channel();
-        self.send(
-            Cmd::Configure(exposure_s, gain, tx),
-            rx,
-            "configure",
-            MARGIN_S,
-        )
+        call(&s.id, &self.tx, "configure", MARGIN_S, |tx| {
+            Cmd::Configure(exposure_s, gain, tx)
+        })
         .await
     }
 
     /// Arms (true) or disarms (false) the camera.
     pub async fn set_armed(&self, armed: bool) -> DeviceResult<()> {
-        let (tx, rx) = oneshot::channel();
-        self.send(
-            Cmd::Arm(armed, tx),
-            rx,
-            if armed { "arm" } else { "disarm" },
-            MARGIN_S,
-        )
+        let what = if armed { "arm" } else { "disarm" };
+        call(&self.spec.id, &self.tx, what, MARGIN_S, |tx| {
+            Cmd::Arm(armed, tx)
+        })
         .await
     }
 
@@ -106,36 +100,10 @@ impl CameraHandle {
     /// frame of another trigger is an error, never silently accepted.
     pub async fn frame_for(&self, trigger_id: u64, exposure_s: f64) -> DeviceResult<Frame> {
         let wait_s = exposure_s + self.spec.readout_s() + MARGIN_S;
-        let (tx, rx) = oneshot::channel();
-        self.send(
-            Cmd::FrameFor(trigger_id, wait_s, tx),
-            rx,
-            "frame",
-            wait_s + MARGIN_S,
-        )
+        call(&self.spec.id, &self.tx, "frame", wait_s + MARGIN_S, |tx| {
+            Cmd::FrameFor(trigger_id, wait_s, tx)
+        })
         .await
-    }
-
-    async fn send<T>(
-        &self,
-        cmd: Cmd,
-        rx: oneshot::Receiver<DeviceResult<T>>,
-        what: &str,
-        timeout_s: f64,
-    ) -> DeviceResult<T> {
-        let gone = || DeviceError::Gone {
-            device: self.spec.id.clone(),
-        };
-        self.tx.send(cmd).await.map_err(|_| gone())?;
-        match tokio::time::timeout(duration_s(timeout_s), rx).await {
-            Ok(Ok(r)) => r,
-            Ok(Err(_)) => Err(gone()),
-            Err(_) => Err(DeviceError::Timeout {
-                device: self.spec.id.clone(),
-                request: what.into(),
-                timeout_s,
-            }),
-        }
     }
 }
 

@@ -8,6 +8,7 @@ use tokio::sync::{mpsc, oneshot, watch};
 
 use crate::clock::duration_s;
 use crate::error::{DeviceError, DeviceResult};
+use crate::request::call;
 use crate::rig::CartSpec;
 
 /// Direction of the cart's motor.
@@ -96,19 +97,6 @@ impl CartHandle {
             });
         }
         let timeout_s = (target_mm - self.position_mm()).abs() / s.speed_mm_s * 1.5 + 2.0;
-        let gone = || DeviceError::Gone {
-            device: s.id.clone(),
-        };
-        let (tx, rx) = oneshot::channel();
-        self.tx.send((target_mm, tx)).await.map_err(|_| gone())?;
-        match tokio::time::timeout(duration_s(timeout_s), rx).await {
-            Ok(Ok(r)) => r,
-            Ok(Err(_)) => Err(gone()),
-            Err(_) => Err(DeviceError::Timeout {
-                device: s.id.clone(),
-                request: "move".into(),
-                timeout_s,
-            }),
-        }
+        call(&s.id, &self.tx, "move", timeout_s, |tx| (target_mm, tx)).await
     }
 }

@@ -9,8 +9,8 @@ use std::sync::Arc;
 use serde::Serialize;
 use tokio::sync::{mpsc, oneshot, watch};
 
-use crate::clock::duration_s;
 use crate::error::{DeviceError, DeviceResult};
+use crate::request::call;
 use crate::rig::LaserSpec;
 
 /// What a backend (simulated laser, relay channel, GRBL M-codes) must do.
@@ -80,55 +80,43 @@ impl LaserHandle {
 
     /// Allows emission from now on.
     pub async fn arm(&self) -> DeviceResult<()> {
-        let (tx, rx) = oneshot::channel();
-        self.send(Cmd::Arm(true, tx), rx, "arm").await
+        call(&self.spec.id, &self.tx, "arm", TIMEOUT_S, |tx| {
+            Cmd::Arm(true, tx)
+        })
+        .await
     }
 
     /// Switches emission off and disarms.
     pub async fn disarm(&self) -> DeviceResult<()> {
-        let (tx, rx) = oneshot::channel();
-        self.send(Cmd::Arm(false, tx), rx, "disarm").await
+        call(&self.spec.id, &self.tx, "disarm", TIMEOUT_S, |tx| {
+            Cmd::Arm(false, tx)
+        })
+        .await
     }
 
     /// Switches emission on; fails unless armed and `colour_nm` is the fitted module.
     pub async fn on(&self, colour_nm: u32) -> DeviceResult<()> {
-        let (tx, rx) = oneshot::channel();
-        self.send(Cmd::Emit(true, colour_nm, tx), rx, "on").await
+        call(&self.spec.id, &self.tx, "on", TIMEOUT_S, |tx| {
+            Cmd::Emit(true, colour_nm, tx)
+        })
+        .await
     }
 
     /// Switches emission off (stays armed).
     pub async fn off(&self) -> DeviceResult<()> {
-        let (tx, rx) = oneshot::channel();
         let fitted = self.status().fitted_nm;
-        self.send(Cmd::Emit(false, fitted, tx), rx, "off").await
+        call(&self.spec.id, &self.tx, "off", TIMEOUT_S, |tx| {
+            Cmd::Emit(false, fitted, tx)
+        })
+        .await
     }
 
     /// Records that the operator fitted `colour_nm` at `mount_elevation_deg` (emission must be off).
     pub async fn fitted(&self, colour_nm: u32, mount_elevation_deg: f64) -> DeviceResult<()> {
-        let (tx, rx) = oneshot::channel();
-        self.send(Cmd::Fit(colour_nm, mount_elevation_deg, tx), rx, "fit")
-            .await
-    }
-
-    async fn send(
-        &self,
-        cmd: Cmd,
-        rx: oneshot::Receiver<DeviceResult<()>>,
-        what: &str,
-    ) -> DeviceResult<()> {
-        let gone = || DeviceError::Gone {
-            device: self.spec.id.clone(),
-        };
-        self.tx.send(cmd).await.map_err(|_| gone())?;
-        match tokio::time::timeout(duration_s(TIMEOUT_S), rx).await {
-            Ok(Ok(r)) => r,
-            Ok(Err(_)) => Err(gone()),
-            Err(_) => Err(DeviceError::Timeout {
-                device: self.spec.id.clone(),
-                request: what.into(),
-                timeout_s: TIMEOUT_S,
-            }),
-        }
+        call(&self.spec.id, &self.tx, "fit", TIMEOUT_S, |tx| {
+            Cmd::Fit(colour_nm, mount_elevation_deg, tx)
+        })
+        .await
     }
 }
 

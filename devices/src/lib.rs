@@ -11,6 +11,7 @@ pub mod error;
 pub mod frame;
 pub mod laser;
 pub mod motion;
+mod request;
 pub mod rig;
 pub mod switch_bank;
 pub mod trigger;

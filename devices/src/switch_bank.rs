@@ -5,8 +5,8 @@ use std::sync::Arc;
 
 use tokio::sync::{mpsc, oneshot, watch};
 
-use crate::clock::duration_s;
 use crate::error::{DeviceError, DeviceResult};
+use crate::request::call;
 use crate::rig::SwitchBankSpec;
 
 /// What a backend (simulated relays, serial or HID relay board) must do.
@@ -66,8 +66,11 @@ impl SwitchBankHandle {
                 });
             }
         }
-        let (tx, rx) = oneshot::channel();
-        self.send(Cmd::Set(changes.to_vec(), tx), rx, "set").await
+        let changes = changes.to_vec();
+        call(&self.spec.id, &self.tx, "set", TIMEOUT_S, |tx| {
+            Cmd::Set(changes, tx)
+        })
+        .await
     }
 
     /// Switches every channel off.
@@ -78,29 +81,7 @@ impl SwitchBankHandle {
 
     /// Reads the channel states from the device.
     pub async fn read(&self) -> DeviceResult<Vec<bool>> {
-        let (tx, rx) = oneshot::channel();
-        self.send(Cmd::Read(tx), rx, "read").await
-    }
-
-    async fn send<T>(
-        &self,
-        cmd: Cmd,
-        rx: oneshot::Receiver<DeviceResult<T>>,
-        what: &str,
-    ) -> DeviceResult<T> {
-        let gone = || DeviceError::Gone {
-            device: self.spec.id.clone(),
-        };
-        self.tx.send(cmd).await.map_err(|_| gone())?;
-        match tokio::time::timeout(duration_s(TIMEOUT_S), rx).await {
-            Ok(Ok(r)) => r,
-            Ok(Err(_)) => Err(gone()),
-            Err(_) => Err(DeviceError::Timeout {
-                device: self.spec.id.clone(),
-                request: what.into(),
-                timeout_s: TIMEOUT_S,
-            }),
-        }
+        call(&self.spec.id, &self.tx, "read", TIMEOUT_S, Cmd::Read).await
     }
 }
 

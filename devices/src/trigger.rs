@@ -5,8 +5,8 @@ use std::sync::Arc;
 
 use tokio::sync::{mpsc, oneshot};
 
-use crate::clock::duration_s;
-use crate::error::{DeviceError, DeviceResult};
+use crate::error::DeviceResult;
+use crate::request::call;
 use crate::rig::TriggerSpec;
 
 /// What a backend (simulated line, a GPIO or serial trigger box, software trigger) must do.
@@ -48,19 +48,9 @@ impl TriggerHandle {
 
     /// Fires once; every armed camera tags the frame of this pulse with `trigger_id`.
     pub async fn fire(&self, trigger_id: u64) -> DeviceResult<()> {
-        let gone = || DeviceError::Gone {
-            device: self.spec.id.clone(),
-        };
-        let (tx, rx) = oneshot::channel();
-        self.tx.send((trigger_id, tx)).await.map_err(|_| gone())?;
-        match tokio::time::timeout(duration_s(TIMEOUT_S), rx).await {
-            Ok(Ok(r)) => r,
-            Ok(Err(_)) => Err(gone()),
-            Err(_) => Err(DeviceError::Timeout {
-                device: self.spec.id.clone(),
-                request: "fire".into(),
-                timeout_s: TIMEOUT_S,
-            }),
-        }
+        call(&self.spec.id, &self.tx, "fire", TIMEOUT_S, |tx| {
+            (trigger_id, tx)
+        })
+        .await
     }
 }

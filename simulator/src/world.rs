@@ -168,6 +168,11 @@ impl World {
         s.exposing_until_s = s.exposing_until_s.max(until_s);
     }
 
+    /// Starts an exposure window as a camera would (for tests of the motion interlock).
+    pub fn begin_exposure_for_test(&self, start_s: f64, until_s: f64) {
+        self.begin_exposure(start_s, until_s);
+    }
+
     /// Records a safety violation observed by a simulated device.
     pub(crate) fn violation(&self, message: String) {
         self.lock().violations.push(message);

@@ -340,15 +340,6 @@ impl Index {
         Ok((status, message))
     }
 
-    /// Commits one step: its frame rows and its journal row, in one transaction.
-    pub(crate) fn commit_step(
-        &mut self,
-        record: &StepRecord,
-        rows: &[NewFrameRow<'_>],
-    ) -> Result<()> {
-        self.commit_steps(&[(record, rows)])
-    }
-
     /// Commits several steps in ONE transaction (one fsync): for each, replaces its frame rows
     /// and marks it done. Either every step of the batch commits or none does.
     pub(crate) fn commit_steps(

@@ -271,6 +271,14 @@ impl Renderer {
             "black_level_dn": black,
             "stats": { "shadow_rays": n.shadow_rays, "visibility_maps": n.scene.visibility_maps() },
         });
+        if n.plan.shadows.on {
+            notes["effects"]["shadows"]["method"] = json!(if n.scene.visibility_maps() > 0 {
+                "preview: per-vertex visibility maps toward each light position (tube: 4 \
+                 positions), bilinear over the relief grid; rays elsewhere"
+            } else {
+                "one shadow ray per light sample"
+            });
+        }
         if !n.unknown_lamps.is_empty() {
             notes["ignored_lamps"] = json!(n.unknown_lamps);
         }

@@ -16,6 +16,9 @@ use super::shadow::{VertexVisibility, shadow_origin};
 
 /// The dark grey turntable around the sample.
 const TURNTABLE: Material = Material::grey(0.05);
+/// Points along the tube whose visibility maps shade preview frames: each serves the light
+/// samples of a quarter of the tube (a four-step penumbra, a quarter of the cost).
+const TUBE_SHADOW_POSITIONS: u32 = 4;
 /// Key for sub-pixel and light-sample jitter: fixed, so only the sensor noise depends on the
 /// caller's seed.
 const JITTER_KEY: u64 = 0x5a3e_11c0_77aa_0001;
@@ -100,10 +103,9 @@ impl<'a> Scene<'a> {
                     length,
                     ..
                 } => {
-                    let n = quality.tube_samples();
-                    let stratum = length / n as f32;
-                    (0..n)
-                        .filter_map(|k| visibility(start + axis * (stratum * (k as f32 + 0.5))))
+                    let part = length / TUBE_SHADOW_POSITIONS as f32;
+                    (0..TUBE_SHADOW_POSITIONS)
+                        .filter_map(|k| visibility(start + axis * (part * (k as f32 + 0.5))))
                         .collect()
                 }
                 Emitter::Backlight { .. } => Vec::new(),
@@ -362,7 +364,8 @@ impl<'a> Scene<'a> {
                         let to_p = h.p - q;
                         let emit = (-to_p.z / to_p.length().max(1.0e-6)).max(0.0);
                         let intensity = per_mm * length / per as f32 * emit;
-                        let map = maps.and_then(|m| m.get(s as usize));
+                        let part = (s * TUBE_SHADOW_POSITIONS / n) as usize;
+                        let map = maps.and_then(|m| m.get(part));
                         sum += self.point_light(h, wo, q, intensity, map, rays);
                     }
                     total += light.rgb * sum;
