@@ -42,15 +42,14 @@ impl SessionError {
             | SessionError::Rig(_)
             | SessionError::Invalid(..)
             | SessionError::Open(_) => 2,
-            SessionError::Storage(e) => match e {
+            SessionError::Storage(
                 StorageError::CreateRoot { .. }
                 | StorageError::CreateRunDir { .. }
                 | StorageError::NotARun { .. }
                 | StorageError::UnsupportedFormat { .. }
                 | StorageError::PlanHashMismatch { .. }
-                | StorageError::RunInUse { .. } => 2,
-                _ => 1,
-            },
+                | StorageError::RunInUse { .. },
+            ) => 2,
             _ => 1,
         }
     }

@@ -206,13 +206,15 @@ fn abort_mid_run_leaves_lamps_and_laser_off() {
         let probe = rig.clone();
         tokio::spawn(async move {
             while let Ok(e) = rx.recv().await {
-                if let Event::StepStarted {
-                    kind: "capture", ..
-                } = &e
-                {
-                    if probe.laser.as_ref().is_some_and(|l| l.status().on) {
-                        ctl.abort();
+                let capturing = matches!(
+                    e,
+                    Event::StepStarted {
+                        kind: "capture",
+                        ..
                     }
+                );
+                if capturing && probe.laser.as_ref().is_some_and(|l| l.status().on) {
+                    ctl.abort();
                 }
             }
         });

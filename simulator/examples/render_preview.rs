@@ -2,8 +2,11 @@
 //! removed, sRGB-encoded) to the directory given as the first argument:
 //!
 //! ```text
-//! cargo run --release -p stagehand-simulator --example render_preview -- /tmp/previews
+//! cargo run --release -p stagehand-simulator --example render_preview -- /tmp/previews [quality]
 //! ```
+//!
+//! The optional second argument overrides the rigs' `sim.quality` (preview, standard,
+//! reference); a third keeps only the views whose name contains it.
 
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -202,13 +205,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         std::process::exit(2);
     };
     std::fs::create_dir_all(&dir)?;
+    let quality = std::env::args().nth(2);
+    let filter = std::env::args().nth(3).unwrap_or_default();
     for (text, views) in [
         (BUILTIN_LIGHTSTAGE, LIGHTSTAGE_VIEWS),
         (BUILTIN_REFLECTOMETER, REFLECTOMETER_VIEWS),
     ] {
-        let rig = parse_rig(text, "built-in")?;
+        let mut rig = parse_rig(text, "built-in")?;
+        if let Some(q) = &quality {
+            rig.sim.quality = q.clone();
+        }
         let renderer = Renderer::new(&rig)?;
-        for v in views {
+        for v in views.iter().filter(|v| v.name.contains(&filter)) {
             let world = WorldSnapshot {
                 rig_time_s: 0.0,
                 axes: BTreeMap::from([

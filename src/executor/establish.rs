@@ -43,10 +43,10 @@ pub(super) async fn establish(
             l.on(state.laser_fitted_nm).await?;
         }
     }
-    if let Some(c) = &rig.cart {
-        if state.cart_mm != 0.0 {
-            c.move_to(state.cart_mm).await?;
-        }
+    if let Some(c) = &rig.cart
+        && state.cart_mm != 0.0
+    {
+        c.move_to(state.cart_mm).await?;
     }
     let lamps: BTreeMap<String, bool> =
         state.lamps_on.iter().map(|id| (id.clone(), true)).collect();

@@ -219,12 +219,33 @@ impl<'a> Scene<'a> {
         if let (Some(map), true) = (map, h.on_relief) {
             return map.at(grid, h.p.x, h.p.y);
         }
+        if !h.on_relief && self.cannot_reach_relief(h.p, wi, grid.zmax()) {
+            return 1.0;
+        }
         *rays += 1;
         if grid.occluded(shadow_origin(h.p, h.n), wi, 0.0, dist) {
             0.0
         } else {
             1.0
         }
+    }
+
+    /// Whether a shadow ray from `p` (off the relief: turntable or the sample's sides) along
+    /// `wi` rises above `zmax` before it could reach the sample's square: then nothing can
+    /// block it. A cheap test that spares most turntable points a march.
+    #[inline]
+    fn cannot_reach_relief(&self, p: Vec3A, wi: Vec3A, zmax: f32) -> bool {
+        let half = 0.5 * self.sample.size_mm;
+        let (dx, dy) = ((p.x.abs() - half).max(0.0), (p.y.abs() - half).max(0.0));
+        let gap2 = dx * dx + dy * dy;
+        if gap2 <= 0.0 || wi.z <= 0.0 {
+            return false;
+        }
+        // Horizontal run before the ray climbs above the relief.
+        let climb = (zmax - p.z).max(0.0);
+        let horizontal = (1.0 - wi.z * wi.z).max(0.0).sqrt();
+        let run = climb * horizontal / wi.z;
+        run * run < gap2
     }
 
     /// Radiance from a point light of intensity `intensity` at `q`, or zero if it is behind
@@ -316,10 +337,10 @@ impl<'a> Scene<'a> {
         let spp = self.quality.spp();
         let mut total = Vec3A::ZERO;
         for (li, light) in self.lights.iter().enumerate() {
-            let key = |stratum: u32, dim: u64| {
-                let counter = (li as u64) << 32 | stratum as u64;
-                unit_f32(hash3(JITTER_KEY, pixel, counter, dim))
-            };
+            // One random rotation per pixel, sample and light (Cranley–Patterson) shifts
+            // every stratum of the light: stratified, and one hash instead of one per point.
+            let rotation = hash3(JITTER_KEY, pixel, (li as u64) << 32 | sub as u64, 1);
+            let jitter = |dim: u32| unit_f32(rotation.rotate_left(24 * dim));
             let maps = self.maps.get(li);
             match light.emitter {
                 Emitter::Halogen {
@@ -340,8 +361,8 @@ impl<'a> Scene<'a> {
                     for m in 0..per {
                         let s = (sub + spp * m) % n;
                         let (a, b) = ((s % side) as f32, (s / side) as f32);
-                        let radius = HALOGEN_RADIUS_MM * ((a + key(s, 0)) / side as f32).sqrt();
-                        let phi = std::f32::consts::TAU * (b + key(s, 1)) / side as f32;
+                        let radius = HALOGEN_RADIUS_MM * ((a + jitter(0)) / side as f32).sqrt();
+                        let phi = std::f32::consts::TAU * (b + jitter(1)) / side as f32;
                         let q = centre + u * (radius * phi.cos()) + v * (radius * phi.sin());
                         sum += self.point_light(h, wo, q, intensity / per as f32, None, rays);
                     }
@@ -359,7 +380,7 @@ impl<'a> Scene<'a> {
                     let mut sum = Vec3A::ZERO;
                     for m in 0..per {
                         let s = (sub + spp * m) % n;
-                        let q = start + axis * (stratum * (s as f32 + key(s, 0)));
+                        let q = start + axis * (stratum * (s as f32 + jitter(0)));
                         // Tape on the tube's sides: it emits downward, Lambert about −z.
                         let to_p = h.p - q;
                         let emit = (-to_p.z / to_p.length().max(1.0e-6)).max(0.0);

@@ -33,10 +33,14 @@ pub fn ward_lobe(n: Vec3A, wi: Vec3A, wo: Vec3A, alpha: f32) -> f32 {
         }
         c * c / len2
     };
-    let alpha = alpha.max(MIN_ALPHA);
-    let tan2 = ((1.0 - cos_d2) / cos_d2.max(1.0e-12)).max(0.0);
-    let norm = 4.0 * PI * alpha * alpha * (cos_i.max(MIN_COS) * cos_o.max(MIN_COS)).sqrt();
-    let v = (-tan2 / (alpha * alpha)).exp() / norm;
+    let alpha2 = alpha.max(MIN_ALPHA) * alpha.max(MIN_ALPHA);
+    let exponent = ((1.0 - cos_d2) / (cos_d2.max(1.0e-12) * alpha2)).max(0.0);
+    // Beyond this the lobe is below 1e-13 of its peak: skip the exp.
+    if exponent.is_nan() || exponent > 30.0 {
+        return 0.0;
+    }
+    let norm = 4.0 * PI * alpha2 * (cos_i.max(MIN_COS) * cos_o.max(MIN_COS)).sqrt();
+    let v = (-exponent).exp() / norm;
     if v.is_finite() { v } else { 0.0 }
 }
 
