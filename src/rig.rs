@@ -211,11 +211,6 @@ impl Rig {
         })
     }
 
-    /// True when every device is simulated (the run uses the virtual clock).
-    pub fn is_simulated(&self) -> bool {
-        self.world.is_some()
-    }
-
     /// Safe state: laser off and disarmed, every switched output off, every axis stopped.
     /// Tries every device even if one fails and reports the first failure.
     pub async fn safe_state(&self) -> DeviceResult<()> {

@@ -1,7 +1,7 @@
 //! A capture session from start to end: script → plan → validation → dataset → rig → executor,
 //! and resuming an interrupted run. The CLI, the tests and (later) the daemon share this.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 
 use stagehand_devices::clock::RigClock;
@@ -262,9 +262,4 @@ pub fn runtime_for(rig: &RigSource) -> std::io::Result<tokio::runtime::Runtime> 
             .enable_all()
             .build()
     }
-}
-
-/// Path of a run directory for messages.
-pub fn run_dir(store: &RunStore) -> PathBuf {
-    store.dir().to_path_buf()
 }

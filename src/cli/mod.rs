@@ -102,6 +102,7 @@ fn overrides(set: &[String]) -> Result<Vec<(String, String)>, SessionError> {
 }
 
 fn dispatch(command: Command) -> Result<i32, SessionError> {
+    let started = std::time::Instant::now();
     match command {
         Command::Plan {
             script,
@@ -154,7 +155,6 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
             let store = session::create_run(&prepared, &out, seed)?;
             let dir = store.dir().to_path_buf();
             eprintln!("run directory: {}", dir.display());
-            let estimate = prepared.estimate.rig_time_s;
             let result = runtime.block_on(async move {
                 let (wiring, ui) = wire(yes, reserve_mib);
                 let r = match session::open_rig(&prepared.rig, seed) {
@@ -164,7 +164,7 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
                 ui.finish().await;
                 r
             });
-            report(&dir, estimate, result)
+            report(&dir, started, result)
         }
         Command::Resume {
             run_dir,
@@ -174,7 +174,6 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
             let reopened = session::reopen(&run_dir)?;
             let runtime =
                 session::runtime_for(&reopened.rig).map_err(|e| SessionError::Io(e.to_string()))?;
-            let estimate = crate::estimate::estimate(&reopened.plan, &reopened.rig.spec).rig_time_s;
             eprintln!("resuming {}", run_dir.display());
             let result = runtime.block_on(async move {
                 let (wiring, ui) = wire(yes, reserve_mib);
@@ -182,7 +181,7 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
                 ui.finish().await;
                 r
             });
-            report(&run_dir, estimate, result)
+            report(&run_dir, started, result)
         }
     }
 }
@@ -219,18 +218,24 @@ fn wire(yes: bool, reserve_mib: u64) -> (Wiring, progress::Progress) {
 
 fn report(
     dir: &std::path::Path,
-    estimate_s: f64,
+    started: std::time::Instant,
     result: Result<Summary, SessionError>,
 ) -> Result<i32, SessionError> {
     let summary = result?;
+    let (files, bytes) = frames_on_disk(dir);
     println!("run {}: {}", summary.status, dir.display());
+    println!(
+        "  {files} frame files, {} on disk, wall time {:.1} s",
+        crate::executor::human_bytes(bytes),
+        started.elapsed().as_secs_f64()
+    );
     println!(
         "  steps {}/{}, frames written {}, rig time {} (estimated {})",
         summary.steps_done,
         summary.steps_total,
         summary.frames_written,
-        progress::hms(summary.rig_time_s),
-        progress::hms(estimate_s)
+        progress::hms(summary.session_rig_s),
+        progress::hms(summary.estimated_rig_time_s)
     );
     println!(
         "  index: sqlite3 {}/index.sqlite 'SELECT camera, count(*) FROM frames GROUP BY camera'",
@@ -243,4 +248,15 @@ fn report(
         return Ok(1);
     }
     Ok(0)
+}
+
+/// Number and total size of the files in a run's `frames/` directory.
+fn frames_on_disk(dir: &std::path::Path) -> (usize, u64) {
+    let Ok(entries) = std::fs::read_dir(dir.join("frames")) else {
+        return (0, 0);
+    };
+    entries
+        .filter_map(|e| e.ok()?.metadata().ok())
+        .filter(|m| m.is_file())
+        .fold((0, 0), |(n, b), m| (n + 1, b + m.len()))
 }

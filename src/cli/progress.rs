@@ -41,7 +41,7 @@ impl Progress {
                         frames += n;
                         b.set_position(step as u64 + 1);
                         b.set_message(format!(
-                            "{frames} frames  rig time {}  ETA {}",
+                            "{frames} raw frames  rig time {}  ETA {}",
                             hms(rig_time_s),
                             hms(eta_s)
                         ));

@@ -23,7 +23,7 @@ use tokio::sync::broadcast;
 
 pub use control::{Answer, AutoConfirm, Control, Operator, RunControl};
 pub use events::Event;
-pub use writer::WriterHandle;
+pub use writer::{WriterHandle, human_bytes};
 
 use crate::estimate::{Estimate, RigState, estimate_from, state_before};
 use crate::plan::{Action, Plan, SourcePos};
@@ -60,7 +60,10 @@ pub struct Summary {
     pub steps_done: usize,
     pub steps_total: usize,
     pub frames_written: usize,
+    /// Rig clock at the end (a resumed run continues the clock of its earlier sessions).
     pub rig_time_s: f64,
+    /// Rig time this session took, and what the plan estimate said it would take.
+    pub session_rig_s: f64,
     pub estimated_rig_time_s: f64,
     pub safety_violations: Vec<String>,
 }
@@ -134,6 +137,7 @@ impl Execution {
             steps_total,
             frames_written: finished.as_ref().map(|f| f.frames_written).unwrap_or(0),
             rig_time_s,
+            session_rig_s: rig_time_s - rig_start,
             estimated_rig_time_s: est.rig_time_s,
             safety_violations: violations,
         };
