@@ -147,7 +147,8 @@ impl Dipole {
             return 0.0;
         }
         let r = r.abs();
-        let v = self.alpha_prime / (4.0 * PI) * (self.source(r, self.z_r) + self.source(r, self.z_v));
+        let v =
+            self.alpha_prime / (4.0 * PI) * (self.source(r, self.z_r) + self.source(r, self.z_v));
         if v.is_finite() && v >= 0.0 { v } else { 0.0 }
     }
 
@@ -315,7 +316,10 @@ mod tests {
                     let exact = m.total_diffuse_reflectance();
                     let num = m.total_diffuse_reflectance_numeric(400);
                     let err = (num - exact).abs();
-                    assert!(err <= 1e-10 * exact + 1e-15, "{st} {ap} {eta}: {num} vs {exact}");
+                    assert!(
+                        err <= 1e-10 * exact + 1e-15,
+                        "{st} {ap} {eta}: {num} vs {exact}"
+                    );
                     if exact > 0.0 {
                         worst = worst.max(err / exact);
                     }
@@ -370,7 +374,12 @@ mod tests {
         assert!((m.reduced_albedo() - 0.9).abs() < 1e-15);
         assert!((m.sigma_tr() - (3.0f64 * 0.1 * 1.0).sqrt()).abs() < 1e-12);
         assert!((m.rd(0.7) - n.rd(0.7)).abs() < 1e-12 * n.rd(0.7));
-        for (a, s) in [(0.0, 0.0), (f64::NAN, 1.0), (-1.0, f64::INFINITY), (f64::INFINITY, 1.0)] {
+        for (a, s) in [
+            (0.0, 0.0),
+            (f64::NAN, 1.0),
+            (-1.0, f64::INFINITY),
+            (f64::INFINITY, 1.0),
+        ] {
             let m = Dipole::new(a, s, 1.3);
             let v = m.rd(0.0);
             assert!(v.is_finite() && v >= 0.0);
@@ -406,7 +415,10 @@ mod tests {
             for d in [0.0, 0.1 * zr, zr, 3.0 * zr, 100.0 * zr] {
                 let exact = (zr / (d * d + zr * zr) + zv / (d * d + zv * zv)) / (2.0 * PI);
                 let num = m.line_source(d, 400);
-                assert!((num - exact).abs() <= 1e-11 * exact, "{st} {d}: {num} vs {exact}");
+                assert!(
+                    (num - exact).abs() <= 1e-11 * exact,
+                    "{st} {d}: {num} vs {exact}"
+                );
             }
         }
     }
@@ -426,7 +438,10 @@ mod tests {
                         m.line_source(z * (e - 1.0), 400) * z * e
                     });
                 let exact = m.total_diffuse_reflectance();
-                assert!((total - exact).abs() <= 1e-6 * exact, "{st} {ap}: {total} vs {exact}");
+                assert!(
+                    (total - exact).abs() <= 1e-6 * exact,
+                    "{st} {ap}: {total} vs {exact}"
+                );
             }
         }
     }

@@ -28,20 +28,28 @@ mod tests {
         let n = DVec3::Z;
         assert_eq!(lambert(n, DVec3::X, DVec3::Z, 0.5), 0.0);
         assert_eq!(lambert(n, dir(FRAC_PI_2 + 1e-9, 0.0), DVec3::Z, 0.5), 0.0);
-        let v = lambert(n, dir(FRAC_PI_2 - 1e-9, 0.0), dir(FRAC_PI_2 - 1e-9, 2.0), 0.5);
+        let v = lambert(
+            n,
+            dir(FRAC_PI_2 - 1e-9, 0.0),
+            dir(FRAC_PI_2 - 1e-9, 2.0),
+            0.5,
+        );
         assert!((v - 0.5 / std::f64::consts::PI).abs() < 1e-15);
         assert_eq!(lambert(n, DVec3::NAN, DVec3::Z, 0.5), 0.0);
         assert_eq!(lambert(n, DVec3::Z, DVec3::Z, f64::NAN), 0.0);
     }
 
-    /// White furnace: the directional albedo equals the albedo. Stated bound: |a − ρ_d| ≤ 1e-4
-    /// at the shared integrator's resolution, for θ_i up to 89°.
+    /// White furnace: the directional albedo equals the albedo. Stated bound: |a − ρ_d| ≤ 1e-5
+    /// at the shared integrator's resolution (1024 × 1024), θ_i up to 89°; measured worst
+    /// 1.6e-6 (ρ_d = 1, θ_i = 0°).
     #[test]
     fn white_furnace_equals_albedo() {
         for rho in [0.2, 1.0] {
             for deg in [0.0, 45.0, 89.0] {
-                let a = albedo(f64::to_radians(deg), |wi, wo| lambert(DVec3::Z, wi, wo, rho));
-                assert!((a - rho).abs() <= 1e-4, "{rho} {deg}: {a}");
+                let a = albedo(f64::to_radians(deg), |wi, wo| {
+                    lambert(DVec3::Z, wi, wo, rho)
+                });
+                assert!((a - rho).abs() <= 1e-5, "{rho} {deg}: {a}");
             }
         }
     }

@@ -6,8 +6,9 @@
 //! (t, b) tangent frame. Computed without trigonometry:
 //! tan²δ(cos²φ/α_x² + sin²φ/α_y²) = ((h·t/α_x)² + (h·b/α_y)²)/(h·n)².
 //!
-//! The lobe is *not* energy-conserving at grazing incidence (the 1/√cosθ_i factor); the white
-//! furnace test below states the measured maximum.
+//! The lobe is *not* energy-conserving near grazing incidence: its directional albedo first
+//! falls (the lobe is cut by the horizon), then grows as 1/√cosθ_i within ~0.1° of the horizon,
+//! capped by [`MIN_COS`]; the white-furnace test below states the measured figures.
 
 use glam::{DVec3, Vec3A};
 
@@ -94,7 +95,6 @@ fn finish(exponent: f64, axy: f64, cos_i: f64, cos_o: f64) -> f64 {
 /// converted to f32 (α ≥ 1e-3, cos ≥ 1e-6); exponents above 80 give 0 (e^−80 ≈ 2·10⁻³⁵, near
 /// the f32 normal range). Agrees with the f64 version within 1e-4 relative (tested) wherever
 /// the f64 lobe is above 10⁻⁶ of its peak.
-#[allow(clippy::too_many_arguments)]
 pub fn ward_aniso_f32(
     n: Vec3A,
     t: Vec3A,
@@ -122,7 +122,8 @@ pub fn ward_aniso_f32(
         return 0.0;
     }
     let min_cos = MIN_COS as f32;
-    let norm = 4.0 * std::f32::consts::PI * ax * ay * (cos_i.max(min_cos) * cos_o.max(min_cos)).sqrt();
+    let norm =
+        4.0 * std::f32::consts::PI * ax * ay * (cos_i.max(min_cos) * cos_o.max(min_cos)).sqrt();
     let v = (-exponent.max(0.0)).exp() / norm;
     if v.is_finite() && v >= 0.0 { v } else { 0.0 }
 }
@@ -154,11 +155,10 @@ mod tests {
                         ward_aniso(n, DVec3::X, DVec3::Y, wi, wo, alpha, 2.0 * alpha),
                     ] {
                         assert!(v.is_finite() && v >= 0.0, "{alpha} {ti} {to}: {v}");
-                        if ti >= FRAC_PI_2 || to >= FRAC_PI_2 {
-                            // cos(π/2) in f64 is 6e-17 > 0: still finite, tiny light.
-                            if ti > FRAC_PI_2 || to > FRAC_PI_2 {
-                                assert_eq!(v, 0.0);
-                            }
+                        // Below the horizon: exactly 0. (cos(π/2) in f64 is 6e-17 > 0, so the
+                        // "exactly 90°" rows are finite grazing values; exact 0 is tested below.)
+                        if ti > FRAC_PI_2 || to > FRAC_PI_2 {
+                            assert_eq!(v, 0.0);
                         }
                     }
                 }
@@ -239,31 +239,36 @@ mod tests {
         }
     }
 
-    /// White furnace for the Ward lobe alone (ρ_s = 1): directional albedo
-    /// ∫ ψ cosθ_o dω_o, integrated in half-vector space with the shared integrator (resolution
-    /// in `testutil::albedo`). Stated bounds, from the measurement: albedo ≤ 1.0 + 0.01 for
-    /// θ_i ≤ 60° and α ≤ 0.5; at grazing Ward gains energy — the measured maximum over θ_i up
-    /// to 89°, α ∈ {0.05, 0.1, 0.2, 0.5} is asserted below `WARD_GRAZING_MAX`.
+    /// White furnace for the Ward lobe alone (ρ_s = 1): directional albedo ∫ ψ cosθ_o dω_o with
+    /// the shared half-vector integrator (1024 × 1024 midpoint grid, `testutil::albedo`).
+    ///
+    /// Stated bounds and measured figures:
+    /// - α ∈ {0.05, 0.1, 0.2, 0.5}, θ_i ∈ [0°, 89°]: albedo ≤ 1 + 1e-3. Measured maximum 0.9926
+    ///   (α = 0.05, θ_i = 0°); the albedo *falls* towards grazing (the lobe is cut by the
+    ///   horizon), e.g. 0.0516 at α = 0.05, θ_i = 89°.
+    /// - Beyond 89° Ward *gains* energy as 1/√cosθ_i: measured 1.48 at 89.9°, 4.66 at 89.99°,
+    ///   46.6 at 89.9999° (α = 0.5). The [`MIN_COS`] clamp caps the growth; the bound asserted
+    ///   up to θ_i = 90° − 10⁻⁹ rad is 100.
     #[test]
     fn white_furnace() {
         let n = DVec3::Z;
-        let mut max_low = 0.0f64;
-        let mut max_all = 0.0f64;
+        let mut max_normal = 0.0f64;
         for alpha in [0.05, 0.1, 0.2, 0.5] {
             for deg in [0.0, 15.0, 30.0, 45.0, 60.0, 70.0, 80.0, 85.0, 89.0] {
-                let ti = f64::to_radians(deg);
-                let a = albedo(ti, |wi, wo| ward_iso(n, wi, wo, alpha));
+                let a = albedo(f64::to_radians(deg), |wi, wo| ward_iso(n, wi, wo, alpha));
                 assert!(a.is_finite() && a >= 0.0);
-                if deg <= 60.0 {
-                    max_low = max_low.max(a);
-                }
-                max_all = max_all.max(a);
+                max_normal = max_normal.max(a);
             }
         }
-        assert!(max_low <= 1.01, "max albedo for θi ≤ 60°: {max_low}");
-        assert!(max_all <= WARD_GRAZING_MAX, "max albedo up to 89°: {max_all}");
+        assert!(
+            max_normal <= 1.0 + 1e-3,
+            "max albedo for θi ≤ 89°: {max_normal}"
+        );
+        for alpha in [0.5, 1.0] {
+            for ti in [f64::to_radians(89.9999), FRAC_PI_2 - 1e-9] {
+                let a = albedo(ti, |wi, wo| ward_iso(n, wi, wo, alpha));
+                assert!(a.is_finite() && a <= 100.0, "α {alpha} θi {ti}: {a}");
+            }
+        }
     }
-
-    /// Asserted bound on the Ward lobe's albedo at grazing incidence (θ_i ≤ 89°).
-    const WARD_GRAZING_MAX: f64 = 10.0;
 }
