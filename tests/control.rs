@@ -254,3 +254,23 @@ fn abort_mid_run_leaves_lamps_and_laser_off() {
         1
     );
 }
+
+#[test]
+fn resuming_a_finished_run_changes_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = run_sequence(
+        "quickstart.rhai",
+        small_rig("lightstage", 24, 18),
+        &[],
+        tmp.path(),
+        2,
+    );
+    out.result.expect("run");
+    let before = disk_checksums(&out.dir);
+    let rows = count(&db(&out.dir), "SELECT count(*) FROM frames");
+    let summary = resume(&out.dir, ScriptedOperator::new(None)).expect("resume");
+    assert_eq!(summary.status, "done");
+    assert_eq!(summary.frames_written, 0);
+    assert_eq!(disk_checksums(&out.dir), before);
+    assert_eq!(count(&db(&out.dir), "SELECT count(*) FROM frames"), rows);
+}

@@ -166,6 +166,10 @@ impl Execution {
         start_state: &RigState,
         est: &Estimate,
     ) -> Result<(), RunError> {
+        if first >= self.plan.steps.len() {
+            // Every step is durable already (resuming a finished run): nothing to move.
+            return Ok(());
+        }
         let mut live = Live {
             state: start_state.clone(),
             lamp_on_since: BTreeMap::new(),
