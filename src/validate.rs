@@ -12,17 +12,7 @@ use stagehand_devices::rig::{CameraSpec, RigSpec};
 
 use crate::estimate::{MAX_WAIT_S, RigState};
 use crate::plan::{Action, Plan, SourcePos, Step};
-
-/// Fixtures an operator can be asked to place on the stage.
-pub const FIXTURES: [&str; 7] = [
-    "flat",
-    "bumps",
-    "steps",
-    "weave",
-    "checkerboard",
-    "colorchecker",
-    "planes",
-];
+pub use stagehand_devices::rig::FIXTURES;
 
 /// How bad a [`Violation`] is.
 #[derive(Debug, Clone, PartialEq, Serialize)]

@@ -6,7 +6,7 @@ use std::path::Path;
 use thiserror::Error;
 use toml::de::{DeTable, DeValue};
 
-use super::spec::{Backend, LampKind, RigSpec};
+use super::spec::{Backend, FIXTURES, LampKind, RigSpec};
 
 /// A rig file that could not be used.
 #[derive(Debug, Error, Clone, PartialEq)]
@@ -331,22 +331,13 @@ fn check(spec: &RigSpec) -> Result<(), Problem> {
             ));
         }
     }
-    if ![
-        "flat",
-        "bumps",
-        "steps",
-        "weave",
-        "checkerboard",
-        "colorchecker",
-        "planes",
-    ]
-    .contains(&spec.sim.sample.as_str())
-    {
+    if !FIXTURES.contains(&spec.sim.sample.as_str()) {
         return Err((
             vec![Seg::Key("sim"), Seg::Key("sample")],
             format!(
-                "sim.sample `{}` is unknown; use flat, bumps, steps, weave, checkerboard, colorchecker or planes",
-                spec.sim.sample
+                "sim.sample `{}` is unknown; use one of {}",
+                spec.sim.sample,
+                FIXTURES.join(", ")
             ),
         ));
     }

@@ -259,6 +259,18 @@ pub struct CartSpec {
     pub travel_mm: f64,
 }
 
+/// Fixtures that can lie on the stage: procedural samples and calibration targets. The rig's
+/// `sim.sample`, operator prompts and the renderer all draw from this one list.
+pub const FIXTURES: [&str; 7] = [
+    "flat",
+    "bumps",
+    "steps",
+    "weave",
+    "checkerboard",
+    "colorchecker",
+    "planes",
+];
+
 /// Simulation settings: the sample on the stage and the renderer's seed and quality.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

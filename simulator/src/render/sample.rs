@@ -7,16 +7,7 @@ use rayon::prelude::*;
 use super::heightfield::HeightGrid;
 use super::rng::{mix64, unit_f32};
 
-/// Names of every fixture the renderer can build.
-pub const FIXTURES: [&str; 7] = [
-    "flat",
-    "bumps",
-    "steps",
-    "weave",
-    "checkerboard",
-    "colorchecker",
-    "planes",
-];
+pub use stagehand_devices::rig::FIXTURES;
 
 /// Finest relief and texel spacing, in mm (about one pixel of the light stage cameras).
 const TEXEL_MM: f32 = 0.1;
