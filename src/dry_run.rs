@@ -6,6 +6,7 @@ use std::fmt::Write as _;
 
 use crate::estimate::{DeviceKind, DeviceUsage, Estimate};
 use crate::plan::Plan;
+use crate::units::{hms, human_bytes};
 use crate::validate::{Severity, Violation};
 
 /// Human-readable dry-run report: steps, captures, frames (raw + HDR), bytes (human units),
@@ -238,71 +239,20 @@ fn natural_cmp(a: &str, b: &str) -> Ordering {
     ca.len().cmp(&cb.len()).then_with(|| a.cmp(b))
 }
 
-/// Seconds as h:mm:ss, rounded to the nearest second ("-" if not a time).
-pub(crate) fn hms(seconds: f64) -> String {
-    if !seconds.is_finite() || seconds < 0.0 {
-        return "-".into();
-    }
-    let total = seconds.round() as u64;
-    format!("{}:{:02}:{:02}", total / 3600, total / 60 % 60, total % 60)
-}
-
-/// Bytes in binary units: "512 B", "1.50 KiB", "3.21 GiB".
-pub(crate) fn human_bytes(bytes: u64) -> String {
-    const UNITS: [&str; 6] = ["KiB", "MiB", "GiB", "TiB", "PiB", "EiB"];
-    if bytes < 1024 {
-        return format!("{bytes} B");
-    }
-    let mut value = bytes as f64 / 1024.0;
-    let mut unit = 0;
-    while value >= 1024.0 && unit + 1 < UNITS.len() {
-        value /= 1024.0;
-        unit += 1;
-    }
-    format!("{value:.2} {}", UNITS[unit])
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::estimate::{estimate, estimate_from, state_before};
-    use crate::plan::{Action, SourcePos, Step};
+    use crate::plan::{Action, SourcePos};
+    use crate::test_support::plan_at;
     use crate::validate::validate;
     use std::collections::BTreeMap;
 
     fn plan(actions: Vec<Action>) -> Plan {
-        let steps = actions
-            .into_iter()
-            .enumerate()
-            .map(|(index, action)| Step {
-                index,
-                block: String::new(),
-                at: SourcePos {
-                    line: index as u32 + 10,
-                    col: 3,
-                },
-                action,
-            })
-            .collect();
-        Plan {
-            script: "scan.rhai".into(),
-            params: BTreeMap::new(),
-            steps,
-        }
-    }
-
-    #[test]
-    fn formats_times_and_bytes() {
-        assert_eq!(hms(0.0), "0:00:00");
-        assert_eq!(hms(59.6), "0:01:00");
-        assert_eq!(hms(3725.0), "1:02:05");
-        assert_eq!(hms(100.0 * 3600.0), "100:00:00");
-        assert_eq!(hms(f64::NAN), "-");
-        assert_eq!(human_bytes(0), "0 B");
-        assert_eq!(human_bytes(1023), "1023 B");
-        assert_eq!(human_bytes(1536), "1.50 KiB");
-        assert_eq!(human_bytes(3 * 1024 * 1024 * 1024), "3.00 GiB");
-        assert_eq!(human_bytes(u64::MAX), "16.00 EiB");
+        plan_at("scan.rhai", actions, |i| SourcePos {
+            line: i as u32 + 10,
+            col: 3,
+        })
     }
 
     #[test]

@@ -14,4 +14,7 @@ pub mod rig;
 pub mod script;
 pub mod session;
 pub mod storage;
+#[cfg(test)]
+mod test_support;
+pub mod units;
 pub mod validate;

@@ -226,7 +226,7 @@ fn report(
     println!("run {}: {}", summary.status, dir.display());
     println!(
         "  {files} frame files, {} on disk, wall time {:.1} s",
-        crate::executor::human_bytes(bytes),
+        crate::units::human_bytes(bytes),
         started.elapsed().as_secs_f64()
     );
     println!(
@@ -234,8 +234,8 @@ fn report(
         summary.steps_done,
         summary.steps_total,
         summary.frames_written,
-        progress::hms(summary.session_rig_s),
-        progress::hms(summary.estimated_rig_time_s)
+        crate::units::hms(summary.session_rig_s),
+        crate::units::hms(summary.estimated_rig_time_s)
     );
     println!(
         "  index: sqlite3 {}/index.sqlite 'SELECT camera, count(*) FROM frames GROUP BY camera'",

@@ -5,6 +5,7 @@ use tokio::sync::broadcast;
 use tokio::sync::broadcast::error::RecvError;
 
 use crate::executor::Event;
+use crate::units::hms;
 
 /// A progress bar following one run's events.
 pub struct Progress {
@@ -72,14 +73,4 @@ impl Progress {
             self.bar.finish();
         }
     }
-}
-
-/// Seconds as h:mm:ss.
-pub fn hms(seconds: f64) -> String {
-    let s = if seconds.is_finite() {
-        seconds.max(0.0).round() as u64
-    } else {
-        0
-    };
-    format!("{}:{:02}:{:02}", s / 3600, (s / 60) % 60, s % 60)
 }

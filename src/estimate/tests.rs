@@ -1,10 +1,18 @@
 //! Tests of [`super`].
 
 use super::*;
-use crate::plan::{SourcePos, Step};
+use crate::plan::SourcePos;
 use proptest::prelude::*;
 
 use super::test_rigs::{lightstage, reflectometer};
+use crate::test_support::{lamps, mv, plan_at};
+
+fn plan(actions: Vec<Action>) -> Plan {
+    plan_at("test.rhai", actions, |i| SourcePos {
+        line: i as u32 + 1,
+        col: 1,
+    })
+}
 
 /// The estimate with the run-start homing taken out (it has its own test below), so the
 /// hand-computed cases read as the steps' costs alone.
@@ -34,39 +42,6 @@ fn a_run_starts_with_homing_and_a_resume_with_re_establishing() {
     let turntable = rig.axis("turntable").unwrap();
     let expected = settle + stagehand_devices::axis::planned_move_s(turntable, 0.0, 90.0);
     assert!((establish_s(&rig, &state) - expected).abs() < 1e-12);
-}
-
-fn plan(actions: Vec<Action>) -> Plan {
-    let steps = actions
-        .into_iter()
-        .enumerate()
-        .map(|(index, action)| Step {
-            index,
-            block: String::new(),
-            at: SourcePos {
-                line: index as u32 + 1,
-                col: 1,
-            },
-            action,
-        })
-        .collect();
-    Plan {
-        script: "test.rhai".into(),
-        params: BTreeMap::new(),
-        steps,
-    }
-}
-
-fn mv(targets: &[(&str, f64)]) -> Action {
-    Action::Move {
-        targets: targets.iter().map(|(k, v)| (k.to_string(), *v)).collect(),
-    }
-}
-
-fn lamps(states: &[(&str, bool)]) -> Action {
-    Action::Lamps {
-        states: states.iter().map(|(k, v)| (k.to_string(), *v)).collect(),
-    }
 }
 
 fn capture(exposures: &[f64], cameras: &[&str], hdr: bool, min_interval_s: f64) -> Action {

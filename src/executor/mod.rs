@@ -23,7 +23,7 @@ use tokio::sync::broadcast;
 
 pub use control::{Answer, AutoConfirm, Control, Operator, RunControl};
 pub use events::Event;
-pub use writer::{WriterHandle, human_bytes};
+pub use writer::WriterHandle;
 
 use crate::estimate::{Estimate, RigState, estimate_from, state_before};
 use crate::plan::{Action, Plan, SourcePos};

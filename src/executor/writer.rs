@@ -11,6 +11,7 @@ use super::RunError;
 use super::capture::StepFrames;
 use super::events::Event;
 use crate::storage::{FramePixels, FrameToWrite, RunStatus, RunStore, StepRecord, merge_bracket};
+use crate::units::human_bytes;
 
 /// What the writer did by the time the run finished.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -279,20 +280,4 @@ fn prepare_step(frames: StepFrames) -> Result<Vec<FrameToWrite>, String> {
         .collect();
     out.extend(merged);
     Ok(out)
-}
-
-/// Bytes in binary units for messages.
-pub fn human_bytes(b: u64) -> String {
-    const UNITS: [&str; 5] = ["B", "KiB", "MiB", "GiB", "TiB"];
-    let mut v = b as f64;
-    let mut u = 0;
-    while v >= 1024.0 && u < UNITS.len() - 1 {
-        v /= 1024.0;
-        u += 1;
-    }
-    if u == 0 {
-        format!("{b} B")
-    } else {
-        format!("{v:.1} {}", UNITS[u])
-    }
 }

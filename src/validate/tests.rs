@@ -3,41 +3,16 @@
 use super::*;
 
 use crate::estimate::test_rigs::{lightstage, reflectometer};
+use crate::test_support::{lamps, mv, plan_at};
+
+fn plan(actions: Vec<Action>) -> Plan {
+    plan_at("test.rhai", actions, pos)
+}
 
 fn pos(index: usize) -> SourcePos {
     SourcePos {
         line: index as u32 * 2 + 3,
         col: index as u32 + 5,
-    }
-}
-
-fn plan(actions: Vec<Action>) -> Plan {
-    let steps = actions
-        .into_iter()
-        .enumerate()
-        .map(|(index, action)| Step {
-            index,
-            block: "b".into(),
-            at: pos(index),
-            action,
-        })
-        .collect();
-    Plan {
-        script: "test.rhai".into(),
-        params: BTreeMap::new(),
-        steps,
-    }
-}
-
-fn mv(targets: &[(&str, f64)]) -> Action {
-    Action::Move {
-        targets: targets.iter().map(|(k, v)| (k.to_string(), *v)).collect(),
-    }
-}
-
-fn lamps(states: &[(&str, bool)]) -> Action {
-    Action::Lamps {
-        states: states.iter().map(|(k, v)| (k.to_string(), *v)).collect(),
     }
 }
 
