@@ -2,7 +2,6 @@
 //! World when the devices are simulated.
 
 use std::collections::BTreeMap;
-use std::path::Path;
 use std::sync::Arc;
 
 use stagehand_devices::axis::AxisHandle;
@@ -11,7 +10,7 @@ use stagehand_devices::cart::CartHandle;
 use stagehand_devices::clock::RigClock;
 use stagehand_devices::laser::LaserHandle;
 use stagehand_devices::rig::{
-    BUILTIN_LIGHTSTAGE, BUILTIN_REFLECTOMETER, Backend, RigError, RigSpec, load_rig_file, parse_rig,
+    BUILTIN_LIGHTSTAGE, BUILTIN_REFLECTOMETER, Backend, RigError, RigSpec, parse_rig,
 };
 use stagehand_devices::switch_bank::SwitchBankHandle;
 use stagehand_devices::trigger::TriggerHandle;
@@ -34,28 +33,16 @@ impl RigSource {
     /// `None` or `lightstage` → the built-in simulated light stage; `reflectometer` → the built-in
     /// reflectometer; anything else is a path to a rig TOML file.
     pub fn load(arg: Option<&str>) -> Result<RigSource, RigError> {
-        let builtin = |name: &str, text: &str| -> Result<RigSource, RigError> {
-            let origin = format!("builtin:{name}");
-            Ok(RigSource {
-                spec: parse_rig(text, &origin)?,
-                text: text.to_string(),
-                origin,
-            })
-        };
+        let builtin = |name: &str, text: &str| Self::from_text(text, &format!("builtin:{name}"));
         match arg {
             None | Some("lightstage") => builtin("lightstage", BUILTIN_LIGHTSTAGE),
             Some("reflectometer") => builtin("reflectometer", BUILTIN_REFLECTOMETER),
             Some(path) => {
-                let spec = load_rig_file(Path::new(path))?;
                 let text = std::fs::read_to_string(path).map_err(|e| RigError::Read {
                     path: path.to_string(),
                     reason: e.to_string(),
                 })?;
-                Ok(RigSource {
-                    spec,
-                    text,
-                    origin: path.to_string(),
-                })
+                Self::from_text(&text, path)
             }
         }
     }
