@@ -34,7 +34,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         rayon::current_num_threads(),
         rig.sim.quality
     );
-    let relief_mm = Quality::parse(&rig.sim.quality)?.relief_mm();
+    let relief_mm = Quality::parse(&rig.sim.quality)?.knobs().relief_mm;
     // Warm the thread pool first so the build times do not include its start-up.
     rayon::broadcast(|_| ());
     let mut builds = Vec::new();

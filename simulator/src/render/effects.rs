@@ -6,7 +6,7 @@ use stagehand_devices::rig::LampKind;
 
 use super::laser::LaserSheet;
 use super::lights::{Emitter, Light};
-use super::quality::Quality;
+use super::quality::Knobs;
 use super::sample::Sample;
 
 /// One effect switched on or off, and why.
@@ -75,7 +75,7 @@ pub fn plan(
     sample: &Sample,
     lights: &[Light],
     laser: Option<(&LaserSheet, f64, u32, f64)>,
-    quality: Quality,
+    knobs: &Knobs,
 ) -> Plan {
     Plan {
         shadows: shadows(sample, lights, laser.map(|l| l.0)),
@@ -86,8 +86,8 @@ pub fn plan(
             }
             None => Decision::off("laser off"),
         },
-        area_lights: area_lights(lights, quality),
-        linear_light: linear_light(lights, quality),
+        area_lights: area_lights(lights, knobs),
+        linear_light: linear_light(lights, knobs),
         backlight: backlight(sample, lights),
     }
 }
@@ -147,20 +147,19 @@ fn specular(sample: &Sample, lights: &[Light], laser: bool) -> Decision {
     }
 }
 
-fn area_lights(lights: &[Light], quality: Quality) -> Decision {
+fn area_lights(lights: &[Light], knobs: &Knobs) -> Decision {
     if !lights.iter().any(|l| l.kind == LampKind::Halogen) {
         return Decision::off("no halogen lamp lit");
     }
-    match quality.halogen_samples() {
-        1 => Decision::off(format!("{}: halogen lamps as point lights", quality.name())),
+    match knobs.halogen_samples {
+        1 => Decision::off("halogen_samples=1: halogen lamps as point lights"),
         n => Decision::on(format!(
-            "{}: halogen lamps as 10 mm disks, {n} samples per pixel",
-            quality.name()
+            "halogen lamps as 10 mm disks, {n} samples per pixel"
         )),
     }
 }
 
-fn linear_light(lights: &[Light], quality: Quality) -> Decision {
+fn linear_light(lights: &[Light], knobs: &Knobs) -> Decision {
     match lights.iter().find_map(|l| match l.emitter {
         Emitter::Tube {
             start,
@@ -172,9 +171,7 @@ fn linear_light(lights: &[Light], quality: Quality) -> Decision {
     }) {
         Some(c) => Decision::on(format!(
             "tube at x={:.1} mm, z={:.1} mm: {} samples per pixel along its length",
-            c.x,
-            c.z,
-            quality.tube_samples()
+            c.x, c.z, knobs.tube_samples
         )),
         None => Decision::off("tube off"),
     }

@@ -31,6 +31,16 @@ pub enum RenderError {
         "the world has the laser emitting but rig `{0}` has no [laser] table; add one or switch the laser off"
     )]
     NoLaser(String),
+    /// An accuracy knob is out of range.
+    #[error("sim knob `{knob}` must be {expected}, got {got}")]
+    InvalidKnob {
+        /// The knob's name as written in `[sim.knobs]`.
+        knob: &'static str,
+        /// Its accepted range.
+        expected: String,
+        /// The value received.
+        got: String,
+    },
     /// A number in the request or the world snapshot is out of range or not finite.
     #[error("{what} must be {expected}, got {got}")]
     InvalidInput {

@@ -23,6 +23,7 @@ pub mod geometry;
 pub mod heightfield;
 pub mod laser;
 pub mod lights;
+pub mod material;
 pub mod quality;
 pub mod rng;
 pub mod sample;
@@ -36,14 +37,14 @@ use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
 use serde_json::{Value, json};
-use stagehand_devices::rig::{LampKind, RigSpec};
+use stagehand_devices::rig::{CameraSpec, LampKind, RigSpec};
 
 pub use error::RenderError;
 
 use crate::world_state::WorldSnapshot;
 use geometry::{CameraPose, RigAngles, ToSample};
 use laser::LaserSheet;
-use quality::Quality;
+use quality::{Knobs, Quality};
 use sample::Sample;
 use scene::{Scene, Shading};
 use sensor::Sensor;
@@ -57,9 +58,22 @@ const MAX_SAMPLE_SIZE_MM: f64 = 1000.0;
 #[derive(Debug)]
 pub struct Renderer {
     rig: RigSpec,
-    quality: Quality,
+    knobs: Knobs,
     samples: Mutex<HashMap<String, Arc<Sample>>>,
     visibility: shadow::VisibilityCache,
+}
+
+/// Noise-free radiance seen by one camera, before the sensor.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RadianceImage {
+    /// Pixels per row.
+    pub width: u32,
+    /// Rows.
+    pub height: u32,
+    /// Interleaved linear RGB radiance in reference units, row-major from the top-left.
+    pub rgb: Vec<f32>,
+    /// What was rendered and why (as [`Rendered::notes`], without the sensor).
+    pub notes: Value,
 }
 
 /// One rendered frame.
@@ -74,16 +88,21 @@ pub struct Rendered {
 }
 
 impl Renderer {
-    /// A renderer for `rig`, at the rig's `sim.quality`.
+    /// A renderer for `rig`, at the rig's `sim.quality` preset.
     pub fn new(rig: &RigSpec) -> Result<Renderer, RenderError> {
-        let quality = Quality::parse(&rig.sim.quality)?;
+        Renderer::with_knobs(rig, Quality::parse(&rig.sim.quality)?.knobs())
+    }
+
+    /// A renderer for `rig` with explicit accuracy knobs (validated).
+    pub fn with_knobs(rig: &RigSpec, knobs: Knobs) -> Result<Renderer, RenderError> {
+        knobs.validate()?;
         let size = rig.sim.sample_size_mm;
         if !(size.is_finite() && size > 0.0 && size <= MAX_SAMPLE_SIZE_MM) {
             return Err(RenderError::InvalidSampleSize(size));
         }
         Ok(Renderer {
             rig: rig.clone(),
-            quality,
+            knobs,
             samples: Mutex::new(HashMap::new()),
             visibility: shadow::VisibilityCache::default(),
         })
@@ -109,7 +128,7 @@ impl Renderer {
         let built = Sample::build(
             fixture,
             self.rig.sim.sample_size_mm as f32,
-            self.quality.relief_mm(),
+            self.knobs.relief_mm,
         )
         .ok_or_else(|| RenderError::UnknownFixture(fixture.to_string()))?;
         let built = Arc::new(built);
@@ -128,8 +147,57 @@ impl Renderer {
         gain: f64,
         noise_seed: u64,
     ) -> Result<Rendered, RenderError> {
-        let cam = self
-            .rig
+        check_inputs(world, exposure_s, gain)?;
+        let cam = self.camera(camera_id)?;
+        // Light is integrated only for a positive exposure; dark frames skip tracing.
+        let radiance = self.trace(world, cam, exposure_s > 0.0)?;
+        let sensor = Sensor::new(cam.bit_depth, exposure_s, gain, noise_seed);
+        let mut pixels = vec![0u16; radiance.rgb.len()];
+        let width = cam.width as usize;
+        pixels
+            .par_chunks_mut(width * 3)
+            .zip(radiance.rgb.par_chunks(width * 3))
+            .enumerate()
+            .for_each(|(y, (row, rad))| {
+                for x in 0..width {
+                    let index = (y * width + x) as u64;
+                    let rgb = [rad[x * 3], rad[x * 3 + 1], rad[x * 3 + 2]];
+                    row[x * 3..x * 3 + 3].copy_from_slice(&sensor.digitise_rgb(rgb, index));
+                }
+            });
+        let mut notes = radiance.notes;
+        notes["sensor"] = json!({
+            "exposure_s": exposure_s,
+            "gain": gain,
+            "bit_depth": cam.bit_depth,
+            "full_well_e": sensor::FULL_WELL_E,
+            "read_noise_dn": sensor::READ_NOISE_DN_12BIT * gain * sensor::max_dn(cam.bit_depth) / 4095.0,
+            "response": format!("y = x(1 - {c} + {c}x) of full scale", c = sensor::RESPONSE_CURVATURE),
+            "light_integrated": notes["light_integrated"].clone(),
+        });
+        notes["black_level_dn"] = json!(sensor::black_level_dn(cam.bit_depth));
+        if let Some(map) = notes.as_object_mut() {
+            map.remove("light_integrated");
+        }
+        Ok(Rendered { pixels, notes })
+    }
+
+    /// The noise-free radiance camera `camera_id` sees of `world`, in reference units (white
+    /// Lambert under the reference lamp = 1/π), before the sensor: the ground truth the
+    /// tradeoff sweeps and error measures compare.
+    pub fn radiance(
+        &self,
+        world: &WorldSnapshot,
+        camera_id: &str,
+    ) -> Result<RadianceImage, RenderError> {
+        check_inputs(world, 1.0, 1.0)?;
+        let cam = self.camera(camera_id)?;
+        self.trace(world, cam, true)
+    }
+
+    /// The rig's camera `camera_id`, or an error listing the ones it has.
+    fn camera(&self, camera_id: &str) -> Result<&CameraSpec, RenderError> {
+        self.rig
             .camera(camera_id)
             .ok_or_else(|| RenderError::UnknownCamera {
                 camera: camera_id.to_string(),
@@ -141,8 +209,16 @@ impl Renderer {
                     .map(|c| c.id.as_str())
                     .collect::<Vec<_>>()
                     .join(", "),
-            })?;
-        check_inputs(world, exposure_s, gain)?;
+            })
+    }
+
+    /// Traces every pixel of `cam` (or only sets up the notes when `integrate` is false).
+    fn trace(
+        &self,
+        world: &WorldSnapshot,
+        cam: &CameraSpec,
+        integrate: bool,
+    ) -> Result<RadianceImage, RenderError> {
         let sample = self.sample(&world.fixture)?;
         let angles = RigAngles::from_world(&self.rig, &world.axes);
         let to_sample = ToSample::new(angles.turntable_deg);
@@ -164,17 +240,17 @@ impl Renderer {
             &sample,
             &lights,
             laser.as_ref().map(|l| (&l.0, l.1, l.2, l.3)),
-            self.quality,
+            &self.knobs,
         );
         let shading = Shading {
             shadows: plan.shadows.on,
             specular: plan.specular.on,
-            quality: self.quality,
+            knobs: &self.knobs,
         };
         let tubes = lights::tube_bodies(&self.rig, world, to_sample);
-        // Light is integrated only for a positive exposure with something emitting; dark
-        // frames skip tracing and the shadow maps.
-        let lit = exposure_s > 0.0 && (!lights.is_empty() || laser.is_some());
+        // Light is integrated only with something emitting; dark frames skip tracing and the
+        // shadow maps.
+        let lit = integrate && (!lights.is_empty() || laser.is_some());
         let visibility = |light| {
             let grid = sample.grid.as_ref().filter(|_| lit)?;
             Some(self.visibility.get(&sample.name, grid, light))
@@ -187,23 +263,18 @@ impl Renderer {
             shading,
             &visibility,
         );
-        let sensor = Sensor::new(cam.bit_depth, exposure_s, gain, noise_seed);
         let width = cam.width as usize;
-        let mut pixels = vec![0u16; width * cam.height as usize * 3];
-        let shadow_rays: u64 = pixels
+        let mut rgb = vec![0f32; width * cam.height as usize * 3];
+        let shadow_rays: u64 = rgb
             .par_chunks_mut(width * 3)
             .enumerate()
             .map(|(y, row)| {
                 let mut rays = 0u64;
-                for x in 0..width {
-                    let radiance = if lit {
-                        scene.pixel(&pose, x as u32, y as u32, &mut rays)
-                    } else {
-                        glam::Vec3A::ZERO
-                    };
-                    let index = (y * width + x) as u64;
-                    row[x * 3..x * 3 + 3]
-                        .copy_from_slice(&sensor.digitise_rgb(radiance.to_array(), index));
+                if lit {
+                    for x in 0..width {
+                        let radiance = scene.pixel(&pose, x as u32, y as u32, &mut rays);
+                        row[x * 3..x * 3 + 3].copy_from_slice(&radiance.to_array());
+                    }
                 }
                 rays
             })
@@ -215,13 +286,16 @@ impl Renderer {
             plan: &plan,
             angles,
             world,
-            exposure_s,
-            gain,
             unknown_lamps,
             shadow_rays,
             lit,
         });
-        Ok(Rendered { pixels, notes })
+        Ok(RadianceImage {
+            width: cam.width,
+            height: cam.height,
+            rgb,
+            notes,
+        })
     }
 
     fn notes(&self, n: &NoteInputs<'_>) -> Value {
@@ -238,17 +312,12 @@ impl Renderer {
                 json!({ "id": l.id, "kind": kind, "output": l.output })
             })
             .collect();
-        let black = sensor::black_level_dn(n.camera.bit_depth);
         let mut notes = json!({
             "renderer": "stagehand-sim direct lighting v1",
             "camera": n.camera.id,
             "fixture": n.sample.name,
-            "quality": self.quality.name(),
-            "samples_per_pixel": self.quality.spp(),
-            "light_samples_per_pixel": {
-                "halogen": self.quality.halogen_samples(),
-                "tube": self.quality.tube_samples(),
-            },
+            "quality": self.knobs.preset,
+            "knobs": serde_json::to_value(&self.knobs).unwrap_or(Value::Null),
             "effects": n.plan.to_json(),
             "lights": lights,
             "geometry": {
@@ -259,16 +328,7 @@ impl Renderer {
                 "relief_max_mm": n.sample.grid.as_ref().map_or(0.0, |g| g.zmax()),
                 "relief_grid_mm": n.sample.grid.as_ref().map(|g| n.sample.size_mm / g.cells() as f32),
             },
-            "sensor": {
-                "exposure_s": n.exposure_s,
-                "gain": n.gain,
-                "bit_depth": n.camera.bit_depth,
-                "full_well_e": sensor::FULL_WELL_E,
-                "read_noise_dn": sensor::READ_NOISE_DN_12BIT * n.gain * sensor::max_dn(n.camera.bit_depth) / 4095.0,
-                "response": format!("y = x(1 - {c} + {c}x) of full scale", c = sensor::RESPONSE_CURVATURE),
-                "light_integrated": n.lit,
-            },
-            "black_level_dn": black,
+            "light_integrated": n.lit,
             "stats": { "shadow_rays": n.shadow_rays, "visibility_maps": n.scene.visibility_maps() },
         });
         if n.plan.shadows.on {
@@ -288,14 +348,12 @@ impl Renderer {
 
 /// Everything the notes record about one frame.
 struct NoteInputs<'a> {
-    camera: &'a stagehand_devices::rig::CameraSpec,
+    camera: &'a CameraSpec,
     sample: &'a Sample,
     scene: &'a Scene<'a>,
     plan: &'a effects::Plan,
     angles: RigAngles,
     world: &'a WorldSnapshot,
-    exposure_s: f64,
-    gain: f64,
     unknown_lamps: Vec<String>,
     shadow_rays: u64,
     lit: bool,

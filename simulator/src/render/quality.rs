@@ -1,20 +1,26 @@
-//! Quality presets: how many samples per pixel and per light the renderer spends.
+//! Accuracy knobs and the presets that set them: how many samples per pixel and per light the
+//! renderer spends, how many interreflection bounces it follows, how finely it resolves relief
+//! and subsurface transport. Every knob trades render time for error; `stagehand sim tradeoff`
+//! measures each one.
+
+use serde::{Deserialize, Serialize};
 
 use super::error::RenderError;
 
-/// The rig's `sim.quality` preset.
+/// A named preset (`sim.quality` in rig and scene files).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Quality {
-    /// 1 sample per pixel, halogen lamps as point lights: fast frames for scripting.
+    /// 1 sample per pixel, halogen lamps as point lights, per-vertex shadow maps: fast
+    /// frames for scripting.
     Preview,
-    /// 4 stratified samples per pixel, lamps as 10 mm disks.
+    /// 4 stratified samples per pixel, lamps as 10 mm disks, exact shadow rays.
     Standard,
-    /// 16 stratified samples per pixel, more light samples.
+    /// 16 stratified samples per pixel, more light, bounce and subsurface samples.
     Reference,
 }
 
 impl Quality {
-    /// Parses the rig's preset name.
+    /// Parses the preset name.
     pub fn parse(name: &str) -> Result<Quality, RenderError> {
         match name {
             "preview" => Ok(Quality::Preview),
@@ -33,45 +39,160 @@ impl Quality {
         }
     }
 
-    /// Side of the square grid of stratified sub-pixel samples.
-    pub fn grid_side(self) -> u32 {
+    /// The knob settings of this preset.
+    pub fn knobs(self) -> Knobs {
         match self {
-            Quality::Preview => 1,
-            Quality::Standard => 2,
-            Quality::Reference => 4,
+            Quality::Preview => Knobs {
+                preset: self.name().into(),
+                spp_side: 1,
+                halogen_samples: 1,
+                tube_samples: 16,
+                bounces: 1,
+                bounce_rays: 8,
+                bounce_tolerance: 0.02,
+                relief_mm: 0.2,
+                shadow_maps: true,
+                dipole_samples: 8,
+            },
+            Quality::Standard => Knobs {
+                preset: self.name().into(),
+                spp_side: 2,
+                halogen_samples: 4,
+                tube_samples: 32,
+                bounces: 1,
+                bounce_rays: 16,
+                bounce_tolerance: 0.01,
+                relief_mm: 0.1,
+                shadow_maps: false,
+                dipole_samples: 16,
+            },
+            Quality::Reference => Knobs {
+                preset: self.name().into(),
+                spp_side: 4,
+                halogen_samples: 16,
+                tube_samples: 64,
+                bounces: 2,
+                bounce_rays: 64,
+                bounce_tolerance: 0.002,
+                relief_mm: 0.1,
+                shadow_maps: false,
+                dipole_samples: 32,
+            },
         }
     }
+}
 
+/// Every accuracy knob of the renderer. Start from a preset ([`Quality::knobs`]) and
+/// override single knobs in the rig's or scene's `[sim.knobs]` table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Knobs {
+    /// The preset these knobs started from (recorded in frame notes).
+    #[serde(default = "default_preset")]
+    pub preset: String,
+    /// Side of the stratified sub-pixel grid: samples per pixel = side².
+    pub spp_side: u32,
+    /// Points on a halogen lamp's 10 mm disk per pixel (1 = a point light at its centre).
+    pub halogen_samples: u32,
+    /// Points along the reflectometer tube per pixel.
+    pub tube_samples: u32,
+    /// Most interreflection bounces followed (the effect plan may need fewer).
+    pub bounces: u32,
+    /// Hemisphere rays per relief texel per bounce.
+    pub bounce_rays: u32,
+    /// A bounce is simulated only if its bound on added radiance, relative to direct light,
+    /// exceeds this.
+    pub bounce_tolerance: f32,
+    /// Spacing of the relief grid and material texels in mm: the height-field march resolves
+    /// relief at this step (cells are intersected exactly, so it is the only march step).
+    pub relief_mm: f32,
+    /// Shadows from per-vertex visibility maps toward each light position (interpolated,
+    /// fast) instead of one exact shadow ray per light sample.
+    pub shadow_maps: bool,
+    /// Radial samples of the dipole kernel per mean free path (subsurface integration
+    /// resolution).
+    pub dipole_samples: u32,
+}
+
+fn default_preset() -> String {
+    "custom".into()
+}
+
+/// Largest value accepted for the sample-count knobs (bounds render time and memory).
+pub const MAX_SAMPLES: u32 = 4096;
+
+impl Knobs {
     /// Samples per pixel.
-    pub fn spp(self) -> u32 {
-        self.grid_side() * self.grid_side()
+    pub fn spp(&self) -> u32 {
+        self.spp_side * self.spp_side
     }
 
-    /// Points on a halogen lamp's disk per pixel, spread over the pixel's sub-samples
-    /// (1 means a point light at the disk centre).
-    pub fn halogen_samples(self) -> u32 {
-        match self {
-            Quality::Preview => 1,
-            Quality::Standard => 4,
-            Quality::Reference => 16,
+    /// Checks every knob is in range; the error names the knob and the range.
+    pub fn validate(&self) -> Result<(), RenderError> {
+        let count = |name: &'static str, v: u32, lo: u32, hi: u32| {
+            if (lo..=hi).contains(&v) {
+                Ok(())
+            } else {
+                Err(RenderError::InvalidKnob {
+                    knob: name,
+                    expected: format!("an integer from {lo} to {hi}"),
+                    got: v.to_string(),
+                })
+            }
+        };
+        count("spp_side", self.spp_side, 1, 64)?;
+        count("halogen_samples", self.halogen_samples, 1, MAX_SAMPLES)?;
+        count("tube_samples", self.tube_samples, 1, MAX_SAMPLES)?;
+        count("bounces", self.bounces, 0, 8)?;
+        count("bounce_rays", self.bounce_rays, 1, MAX_SAMPLES)?;
+        count("dipole_samples", self.dipole_samples, 1, 1024)?;
+        if !(self.bounce_tolerance.is_finite() && (0.0..=1.0).contains(&self.bounce_tolerance)) {
+            return Err(RenderError::InvalidKnob {
+                knob: "bounce_tolerance",
+                expected: "a fraction from 0 to 1".into(),
+                got: self.bounce_tolerance.to_string(),
+            });
         }
+        if !(self.relief_mm.is_finite() && (0.01..=5.0).contains(&self.relief_mm)) {
+            return Err(RenderError::InvalidKnob {
+                knob: "relief_mm",
+                expected: "a spacing from 0.01 to 5 mm".into(),
+                got: self.relief_mm.to_string(),
+            });
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_are_valid_and_ordered() {
+        let [p, s, r] =
+            [Quality::Preview, Quality::Standard, Quality::Reference].map(Quality::knobs);
+        for k in [&p, &s, &r] {
+            k.validate().expect("preset knobs valid");
+        }
+        assert!(p.spp() < s.spp() && s.spp() < r.spp());
+        assert!(p.halogen_samples < s.halogen_samples && s.halogen_samples < r.halogen_samples);
+        assert!(r.bounces >= s.bounces && r.dipole_samples > s.dipole_samples);
     }
 
-    /// Spacing of the relief grid and material texels in mm: preview trades detail finer
-    /// than two camera pixels for speed.
-    pub fn relief_mm(self) -> f32 {
-        match self {
-            Quality::Preview => 0.2,
-            Quality::Standard | Quality::Reference => 0.1,
-        }
-    }
-
-    /// Points along the reflectometer tube per pixel, spread over the pixel's sub-samples.
-    pub fn tube_samples(self) -> u32 {
-        match self {
-            Quality::Preview => 16,
-            Quality::Standard => 32,
-            Quality::Reference => 64,
-        }
+    #[test]
+    fn out_of_range_knob_is_named() {
+        let mut k = Quality::Standard.knobs();
+        k.spp_side = 0;
+        let e = k.validate().expect_err("0 spp rejected").to_string();
+        assert!(e.contains("spp_side") && e.contains("1 to 64"), "{e}");
+        let mut k = Quality::Standard.knobs();
+        k.relief_mm = f32::NAN;
+        assert!(
+            k.validate()
+                .expect_err("NaN")
+                .to_string()
+                .contains("relief_mm")
+        );
     }
 }

@@ -14,30 +14,7 @@ const TEXEL_MM: f32 = 0.1;
 /// Most cells per side, to bound memory and build time for large samples.
 const MAX_CELLS: usize = 1024;
 
-/// Surface reflectance at a point: Lambert + isotropic Ward, plus transmittance for backlight.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Material {
-    /// Diffuse albedo ρd per channel, linear.
-    pub albedo: Vec3A,
-    /// Ward specular albedo ρs.
-    pub ks: f32,
-    /// Ward roughness α (slope spread of the lobe).
-    pub alpha: f32,
-    /// Fraction of the backlight that reaches the camera through the sample, per channel.
-    pub transmittance: Vec3A,
-}
-
-impl Material {
-    /// An opaque grey Lambertian surface.
-    pub const fn grey(albedo: f32) -> Material {
-        Material {
-            albedo: Vec3A::splat(albedo),
-            ks: 0.0,
-            alpha: 0.2,
-            transmittance: Vec3A::ZERO,
-        }
-    }
-}
+pub use super::material::Material;
 
 /// Which procedural sample this is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -90,10 +67,8 @@ impl Texel {
             tint.lerp(Vec3A::ONE, 0.5) * f(self.trans)
         };
         Material {
-            albedo,
-            ks: f(self.ks),
-            alpha: f(self.alpha).max(0.01),
             transmittance: trans,
+            ..Material::ward(albedo, f(self.ks), f(self.alpha).max(0.01))
         }
     }
 }
@@ -213,12 +188,7 @@ fn cells(size: f32, step: f32) -> usize {
     ((size / step.max(TEXEL_MM)).ceil() as usize).clamp(16, MAX_CELLS)
 }
 
-const FLAT: Material = Material {
-    albedo: Vec3A::splat(0.5),
-    ks: 0.04,
-    alpha: 0.15,
-    transmittance: Vec3A::ZERO,
-};
+const FLAT: Material = Material::ward(Vec3A::splat(0.5), 0.04, 0.15);
 const PLANE: Material = Material::grey(0.8);
 const PLANE_STEP_MM: f32 = 20.0;
 
@@ -337,12 +307,7 @@ impl Procedural {
                 let tex = 0.85 + 0.3 * texture(11, x, y, 1.5);
                 let albedo =
                     (base.lerp(colour, weight.sqrt().min(1.0)) * tex).min(Vec3A::splat(0.95));
-                Material {
-                    albedo,
-                    ks: 0.06,
-                    alpha: 0.2,
-                    transmittance: Vec3A::ZERO,
-                }
+                Material::ward(albedo, 0.06, 0.2)
             }
             Kind::Steps => steps(self.size, x, y).1,
             Kind::Weave => weave(self.size, x, y).1,
@@ -396,12 +361,7 @@ fn steps(size: f32, x: f32, y: f32) -> (f32, Material) {
         Vec3A::new(0.75, 0.70, 0.60),
     ];
     let tex = 0.92 + 0.16 * texture(5, x, y, 0.8);
-    let m = Material {
-        albedo: colours[level] * tex,
-        ks: 0.05,
-        alpha: 0.12,
-        transmittance: Vec3A::ZERO,
-    };
+    let m = Material::ward(colours[level] * tex, 0.05, 0.12);
     (1.5 * (level as f32 + 1.0), m)
 }
 
@@ -433,10 +393,8 @@ fn weave(size: f32, x: f32, y: f32) -> (f32, Material) {
         let fibre = 1.0 + stripes + 0.06 * (value_noise(seed, along, across, 2.0) - 0.5);
         let albedo = (straw * v * fibre).min(Vec3A::splat(0.95));
         Material {
-            albedo,
-            ks: 0.10,
-            alpha: 0.18,
             transmittance: albedo * 0.15,
+            ..Material::ward(albedo, 0.10, 0.18)
         }
     };
     match (on_warp && (!on_weft || warp >= weft), on_weft) {
@@ -444,10 +402,8 @@ fn weave(size: f32, x: f32, y: f32) -> (f32, Material) {
         (false, true) => (weft, strand(i, dx, gy, 37)),
         (false, false) => {
             let gap = Material {
-                albedo: Vec3A::splat(0.03),
-                ks: 0.0,
-                alpha: 0.2,
                 transmittance: Vec3A::splat(0.85),
+                ..Material::ward(Vec3A::splat(0.03), 0.0, 0.2)
             };
             (0.0, gap)
         }
@@ -518,12 +474,7 @@ fn colorchecker(size: f32, x: f32, y: f32) -> Material {
         let cx = -2.0 * pitch + (row + 0.5) * pitch;
         if (y - cy).abs() <= 0.5 * patch && (x - cx).abs() <= 0.5 * patch {
             let albedo = colorchecker_patch(row as usize * 6 + col as usize);
-            return Material {
-                albedo,
-                ks: 0.0,
-                alpha: 0.2,
-                transmittance: Vec3A::ZERO,
-            };
+            return Material::ward(albedo, 0.0, 0.2);
         }
     }
     Material::grey(0.03)

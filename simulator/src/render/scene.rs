@@ -8,7 +8,7 @@ use glam::Vec3A;
 use super::geometry::CameraPose;
 use super::laser::LaserSheet;
 use super::lights::{Emitter, HALOGEN_RADIUS_MM, Light, TURNTABLE_RADIUS_MM, TubeBody};
-use super::quality::Quality;
+use super::quality::Knobs;
 use super::rng::{hash3, unit_f32};
 use super::sample::{Material, Sample};
 use super::shading::brdf;
@@ -51,13 +51,13 @@ pub struct Footprint {
 
 /// Settings that decide how a frame is shaded.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Shading {
+pub struct Shading<'a> {
     /// Shadow the lights (the effect plan's decision).
     pub shadows: bool,
     /// Evaluate the Ward lobe.
     pub specular: bool,
-    /// Sampling preset.
-    pub quality: Quality,
+    /// Accuracy knobs.
+    pub knobs: &'a Knobs,
 }
 
 /// Everything needed to shade one frame, fixed for the frame.
@@ -69,29 +69,29 @@ pub struct Scene<'a> {
     tubes: Vec<TubeBody>,
     shadows: bool,
     specular: bool,
-    quality: Quality,
+    knobs: &'a Knobs,
     /// Per light, per light stratum: vertex visibility maps (preview with shadows on).
     maps: Vec<Vec<Arc<VertexVisibility>>>,
     laser_map: Option<Arc<VertexVisibility>>,
 }
 
 impl<'a> Scene<'a> {
-    /// A scene. With shadows on at preview quality, every light sample sits at a fixed point
+    /// A scene. With shadows on and `knobs.shadow_maps`, every light sample sits at a fixed point
     /// and `visibility` supplies (usually from a cache) that point's per-vertex visibility.
     pub fn new(
         sample: &'a Sample,
         lights: Vec<Light>,
         laser: Option<LaserSheet>,
         tubes: Vec<TubeBody>,
-        shading: Shading,
+        shading: Shading<'a>,
         visibility: &dyn Fn(Vec3A) -> Option<Arc<VertexVisibility>>,
     ) -> Scene<'a> {
         let Shading {
             shadows,
             specular,
-            quality,
+            knobs,
         } = shading;
-        let use_maps = shadows && sample.grid.is_some() && quality == Quality::Preview;
+        let use_maps = shadows && sample.grid.is_some() && knobs.shadow_maps;
         let maps = lights
             .iter()
             .map(|light| match light.emitter {
@@ -122,7 +122,7 @@ impl<'a> Scene<'a> {
             tubes,
             shadows,
             specular,
-            quality,
+            knobs,
             maps,
             laser_map,
         }
@@ -334,7 +334,7 @@ impl<'a> Scene<'a> {
         pixel: u64,
         rays: &mut u64,
     ) -> Vec3A {
-        let spp = self.quality.spp();
+        let spp = self.knobs.spp();
         let mut total = Vec3A::ZERO;
         for (li, light) in self.lights.iter().enumerate() {
             // One random rotation per pixel, sample and light (Cranley–Patterson) shifts
@@ -349,7 +349,7 @@ impl<'a> Scene<'a> {
                     v,
                     intensity,
                 } => {
-                    let n = self.quality.halogen_samples();
+                    let n = self.knobs.halogen_samples;
                     let map = maps.and_then(|m| m.first());
                     if n <= 1 {
                         total += light.rgb * self.point_light(h, wo, centre, intensity, map, rays);
@@ -374,7 +374,7 @@ impl<'a> Scene<'a> {
                     length,
                     per_mm,
                 } => {
-                    let n = self.quality.tube_samples();
+                    let n = self.knobs.tube_samples;
                     let per = (n / spp).max(1);
                     let stratum = length / n as f32;
                     let mut sum = Vec3A::ZERO;
@@ -404,7 +404,7 @@ impl<'a> Scene<'a> {
 
     /// Mean radiance over the pixel (x, y) of `pose`, in reference units.
     pub fn pixel(&self, pose: &CameraPose, x: u32, y: u32, rays: &mut u64) -> Vec3A {
-        let side = self.quality.grid_side();
+        let side = self.knobs.spp_side;
         let pixel = y as u64 * pose.width as u64 + x as u64;
         let step = 1.0 / side as f32;
         let mut sum = Vec3A::ZERO;

@@ -5,7 +5,7 @@ use std::f32::consts::{FRAC_1_PI, PI};
 
 use glam::Vec3A;
 
-use super::sample::Material;
+use super::material::Material;
 
 /// Smallest cosine used in the Ward normalisation √(cosθi·cosθo), which diverges at grazing.
 const MIN_COS: f32 = 1.0e-3;
@@ -76,7 +76,7 @@ mod tests {
         ) {
             let n = dir(tn, pn);
             let (wi, wo) = (dir(ti, pi_), dir(to, po));
-            let m = Material { albedo: Vec3A::splat(0.5), ks, alpha, transmittance: Vec3A::ZERO };
+            let m = Material::ward(Vec3A::splat(0.5), ks, alpha);
             let f = brdf(&m, n, wi, wo, true);
             prop_assert!(f.is_finite(), "{f}");
             prop_assert!(f.min_element() >= 0.0, "{f}");
@@ -99,12 +99,7 @@ mod tests {
     #[test]
     fn exactly_grazing_and_degenerate_inputs() {
         let n = Vec3A::Z;
-        let m = Material {
-            albedo: Vec3A::splat(0.5),
-            ks: 0.5,
-            alpha: 0.0,
-            transmittance: Vec3A::ZERO,
-        };
+        let m = Material::ward(Vec3A::splat(0.5), 0.5, 0.0);
         for (wi, wo) in [
             (Vec3A::X, -Vec3A::X),
             (Vec3A::X, Vec3A::X),

@@ -132,6 +132,7 @@ fn bumps_at_low_light_elevation_cast_shadows_and_high_light_may_not() {
 
 #[test]
 fn shadows_darken_the_far_side_of_bumps() {
+    let preview = quality::Quality::Preview.knobs();
     // Same geometry with and without shadow rays: shadows only ever remove light.
     let (r, _) = lightstage("bumps");
     let w = world("bumps", &[("lamp1", 1.0)]);
@@ -146,7 +147,7 @@ fn shadows_darken_the_far_side_of_bumps() {
     let shading = |shadows| Shading {
         shadows,
         specular: true,
-        quality: Quality::Preview,
+        knobs: &preview,
     };
     let scene = Scene::new(
         &sample,
@@ -446,7 +447,7 @@ fn notes_record_quality_and_samples() {
         .render(&world("bumps", &[("lamp6", 1.0)]), "cam2", 0.02, 1.0, 1)
         .expect("render");
     assert_eq!(out.notes["quality"], "standard");
-    assert_eq!(out.notes["samples_per_pixel"], 4);
+    assert_eq!(out.notes["knobs"]["spp_side"], 2);
     assert_eq!(out.notes["effects"]["area_lights"]["on"], true);
     assert_eq!(out.notes["fixture"], "bumps");
     assert_eq!(out.notes["black_level_dn"], 82.0);
@@ -460,6 +461,7 @@ fn notes_record_quality_and_samples() {
 
 #[test]
 fn nothing_radiates_nan_or_negative_at_grazing_light_and_view() {
+    let preview = quality::Quality::Preview.knobs();
     // cam1 at 5°, lamp1 at 10°: the most grazing pair on the rig, on every height field.
     for fixture in ["bumps", "steps", "weave", "planes", "flat"] {
         let (r, rig) = lightstage(fixture);
@@ -476,7 +478,7 @@ fn nothing_radiates_nan_or_negative_at_grazing_light_and_view() {
             Shading {
                 shadows: true,
                 specular: true,
-                quality: Quality::Preview,
+                knobs: &preview,
             },
             &|_| None,
         );
@@ -497,6 +499,7 @@ fn nothing_radiates_nan_or_negative_at_grazing_light_and_view() {
 
 #[test]
 fn preview_visibility_maps_agree_with_exact_shadow_rays() {
+    let preview = quality::Quality::Preview.knobs();
     // The same frame shadowed through per-vertex maps and by marching every pixel: the maps
     // only blur shadow edges over one relief cell.
     for (fixture, lamp, cam) in [("bumps", "lamp1", "cam6"), ("steps", "lamp2", "cam5")] {
@@ -509,7 +512,7 @@ fn preview_visibility_maps_agree_with_exact_shadow_rays() {
         let shading = Shading {
             shadows: true,
             specular: true,
-            quality: Quality::Preview,
+            knobs: &preview,
         };
         let grid = sample.grid.as_ref().expect("relief");
         let map = |light| {
