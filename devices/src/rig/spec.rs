@@ -284,6 +284,39 @@ pub struct SimSpec {
     /// Renderer quality preset: preview, standard, reference.
     #[serde(default = "default_quality")]
     pub quality: String,
+    /// Single accuracy knobs overriding the preset (`[sim.knobs]`).
+    #[serde(default)]
+    pub knobs: SimKnobs,
+    /// Write ground truth (depth, normals, noise-free radiance, material parameters) beside
+    /// every frame.
+    #[serde(default)]
+    pub ground_truth: bool,
+}
+
+/// Overrides of the renderer's accuracy knobs; each unset knob keeps the preset's value.
+/// The simulator's `Knobs` documents each one; they are here so rig and scene files are
+/// checked (unknown keys, wrong types) with a file:line:col like every other table.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimKnobs {
+    /// Side of the stratified sub-pixel grid (samples per pixel = side²).
+    pub spp_side: Option<u32>,
+    /// Points on each halogen lamp's disk per pixel (1 = point light).
+    pub halogen_samples: Option<u32>,
+    /// Points along the reflectometer tube per pixel.
+    pub tube_samples: Option<u32>,
+    /// Most interreflection bounces.
+    pub bounces: Option<u32>,
+    /// Hemisphere rays per relief texel per bounce.
+    pub bounce_rays: Option<u32>,
+    /// Relative bound below which a bounce is skipped.
+    pub bounce_tolerance: Option<f32>,
+    /// Relief grid and march step in mm.
+    pub relief_mm: Option<f32>,
+    /// Per-vertex shadow maps instead of exact shadow rays.
+    pub shadow_maps: Option<bool>,
+    /// Dipole kernel samples per mean free path.
+    pub dipole_samples: Option<u32>,
 }
 
 fn default_sample() -> String {
@@ -302,6 +335,8 @@ impl Default for SimSpec {
             sample: default_sample(),
             sample_size_mm: default_sample_size(),
             quality: default_quality(),
+            knobs: SimKnobs::default(),
+            ground_truth: false,
         }
     }
 }

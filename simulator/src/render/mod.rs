@@ -90,7 +90,10 @@ pub struct Rendered {
 impl Renderer {
     /// A renderer for `rig`, at the rig's `sim.quality` preset.
     pub fn new(rig: &RigSpec) -> Result<Renderer, RenderError> {
-        Renderer::with_knobs(rig, Quality::parse(&rig.sim.quality)?.knobs())
+        let knobs = Quality::parse(&rig.sim.quality)?
+            .knobs()
+            .with(&rig.sim.knobs)?;
+        Renderer::with_knobs(rig, knobs)
     }
 
     /// A renderer for `rig` with explicit accuracy knobs (validated).
@@ -212,6 +215,11 @@ impl Renderer {
             })
     }
 
+    /// The knobs frames of `sample` are rendered with.
+    fn knobs_for<'s>(&'s self, _sample: &'s Sample) -> &'s Knobs {
+        &self.knobs
+    }
+
     /// Traces every pixel of `cam` (or only sets up the notes when `integrate` is false).
     fn trace(
         &self,
@@ -220,6 +228,7 @@ impl Renderer {
         integrate: bool,
     ) -> Result<RadianceImage, RenderError> {
         let sample = self.sample(&world.fixture)?;
+        let knobs = self.knobs_for(&sample);
         let angles = RigAngles::from_world(&self.rig, &world.axes);
         let to_sample = ToSample::new(angles.turntable_deg);
         let pose = CameraPose::new(cam, to_sample);
@@ -240,12 +249,12 @@ impl Renderer {
             &sample,
             &lights,
             laser.as_ref().map(|l| (&l.0, l.1, l.2, l.3)),
-            &self.knobs,
+            knobs,
         );
         let shading = Shading {
             shadows: plan.shadows.on,
             specular: plan.specular.on,
-            knobs: &self.knobs,
+            knobs,
         };
         let tubes = lights::tube_bodies(&self.rig, world, to_sample);
         // Light is integrated only with something emitting; dark frames skip tracing and the
@@ -280,6 +289,7 @@ impl Renderer {
             })
             .sum();
         let notes = self.notes(&NoteInputs {
+            knobs,
             camera: cam,
             sample: &sample,
             scene: &scene,
@@ -316,8 +326,8 @@ impl Renderer {
             "renderer": "stagehand-sim direct lighting v1",
             "camera": n.camera.id,
             "fixture": n.sample.name,
-            "quality": self.knobs.preset,
-            "knobs": serde_json::to_value(&self.knobs).unwrap_or(Value::Null),
+            "quality": n.knobs.preset,
+            "knobs": serde_json::to_value(n.knobs).unwrap_or(Value::Null),
             "effects": n.plan.to_json(),
             "lights": lights,
             "geometry": {
@@ -348,6 +358,7 @@ impl Renderer {
 
 /// Everything the notes record about one frame.
 struct NoteInputs<'a> {
+    knobs: &'a Knobs,
     camera: &'a CameraSpec,
     sample: &'a Sample,
     scene: &'a Scene<'a>,

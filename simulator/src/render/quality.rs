@@ -4,6 +4,7 @@
 //! measures each one.
 
 use serde::{Deserialize, Serialize};
+use stagehand_devices::rig::SimKnobs;
 
 use super::error::RenderError;
 
@@ -122,6 +123,37 @@ fn default_preset() -> String {
 pub const MAX_SAMPLES: u32 = 4096;
 
 impl Knobs {
+    /// These knobs with every knob set in `overrides` replaced, then validated. The preset
+    /// name becomes `"<preset>+custom"` when anything changed.
+    pub fn with(mut self, overrides: &SimKnobs) -> Result<Knobs, RenderError> {
+        let before = self.clone();
+        let SimKnobs {
+            spp_side,
+            halogen_samples,
+            tube_samples,
+            bounces,
+            bounce_rays,
+            bounce_tolerance,
+            relief_mm,
+            shadow_maps,
+            dipole_samples,
+        } = overrides.clone();
+        self.spp_side = spp_side.unwrap_or(self.spp_side);
+        self.halogen_samples = halogen_samples.unwrap_or(self.halogen_samples);
+        self.tube_samples = tube_samples.unwrap_or(self.tube_samples);
+        self.bounces = bounces.unwrap_or(self.bounces);
+        self.bounce_rays = bounce_rays.unwrap_or(self.bounce_rays);
+        self.bounce_tolerance = bounce_tolerance.unwrap_or(self.bounce_tolerance);
+        self.relief_mm = relief_mm.unwrap_or(self.relief_mm);
+        self.shadow_maps = shadow_maps.unwrap_or(self.shadow_maps);
+        self.dipole_samples = dipole_samples.unwrap_or(self.dipole_samples);
+        if self != before && !self.preset.ends_with("+custom") {
+            self.preset.push_str("+custom");
+        }
+        self.validate()?;
+        Ok(self)
+    }
+
     /// Samples per pixel.
     pub fn spp(&self) -> u32 {
         self.spp_side * self.spp_side
