@@ -227,4 +227,28 @@ mod tests {
                 .contains("relief_mm")
         );
     }
+
+    #[test]
+    fn overrides_replace_single_knobs() {
+        let k = Quality::Preview
+            .knobs()
+            .with(&SimKnobs {
+                bounces: Some(3),
+                ..SimKnobs::default()
+            })
+            .expect("valid");
+        assert_eq!(k.bounces, 3);
+        assert_eq!(k.spp_side, 1);
+        assert_eq!(k.preset, "preview+custom");
+        let same = Quality::Preview
+            .knobs()
+            .with(&SimKnobs::default())
+            .expect("valid");
+        assert_eq!(same, Quality::Preview.knobs());
+        let bad = SimKnobs {
+            spp_side: Some(100),
+            ..SimKnobs::default()
+        };
+        assert!(Quality::Preview.knobs().with(&bad).is_err());
+    }
 }
