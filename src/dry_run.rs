@@ -4,6 +4,9 @@
 use std::cmp::Ordering;
 use std::fmt::Write as _;
 
+use stagehand_devices::rig::{Backend, RigSpec};
+use stagehand_simulator::render::Renderer;
+
 use crate::estimate::{DeviceKind, DeviceUsage, Estimate};
 use crate::plan::Plan;
 use crate::units::{hms, human_bytes};
@@ -17,6 +20,18 @@ pub fn render_report(
     plan: &Plan,
     estimate: &Estimate,
     violations: &[Violation],
+) -> String {
+    render_report_with_renderer(script_name, plan, estimate, violations, None)
+}
+
+/// [`render_report`] with a `renderer` line after the prompts (for simulated rigs: the
+/// renderer's preset and resolved knobs, see [`renderer_line`]).
+pub fn render_report_with_renderer(
+    script_name: &str,
+    plan: &Plan,
+    estimate: &Estimate,
+    violations: &[Violation],
+    renderer: Option<&str>,
 ) -> String {
     let mut out = String::new();
     let hash = plan.hash();
@@ -59,6 +74,9 @@ pub fn render_report(
         hms(estimate.rig_time_s)
     );
     let _ = writeln!(out, "  prompts    {}", estimate.prompts);
+    if let Some(line) = renderer {
+        let _ = writeln!(out, "  renderer   {line}");
+    }
 
     if !estimate.per_device.is_empty() {
         out.push('\n');
@@ -101,6 +119,16 @@ pub fn render_report(
 }
 
 /// "1 error", "2 errors".
+/// The renderer's preset, resolved knobs and sample in one line, for a rig whose cameras are
+/// simulated (`None` otherwise). A renderer that cannot be set up says why instead.
+pub fn renderer_line(rig: &RigSpec) -> Option<String> {
+    if rig.cameras.is_empty() || rig.cameras.iter().any(|c| c.backend != Backend::Sim) {
+        return None;
+    }
+    let line = Renderer::new(rig).and_then(|r| r.summary_line(&rig.sim.sample));
+    Some(line.unwrap_or_else(|e| format!("cannot be set up: {e}")))
+}
+
 fn plural(n: usize, noun: &str) -> String {
     if n == 1 {
         format!("1 {noun}")
@@ -253,6 +281,28 @@ mod tests {
             line: i as u32 + 10,
             col: 3,
         })
+    }
+
+    #[test]
+    fn simulated_rigs_report_the_renderer_in_one_line() {
+        let rig = stagehand_devices::rig::parse_rig(
+            stagehand_devices::rig::BUILTIN_LIGHTSTAGE,
+            "lightstage.toml",
+        )
+        .expect("built-in rig parses");
+        let line = renderer_line(&rig).expect("a simulated rig");
+        assert!(
+            line.starts_with("preview (spp 1×1") && line.ends_with("on bumps"),
+            "{line}"
+        );
+        assert!(!line.contains('\n'));
+        let p = plan(vec![]);
+        let report =
+            render_report_with_renderer("x.rhai", &p, &estimate(&p, &rig), &[], Some(&line));
+        assert!(
+            report.contains(&format!("  renderer   {line}\n")),
+            "{report}"
+        );
     }
 
     #[test]

@@ -12,8 +12,10 @@ use crate::executor::{Event, Execution, Operator, RunControl, RunError, Summary,
 use crate::plan::Plan;
 use crate::rig::{Rig, RigSource};
 use crate::script::{ScriptError, ScriptSource, build_plan};
-use crate::storage::{Manifest, RunStatus, RunStore, StorageError};
+use crate::storage::checksum::sha256_hex;
+use crate::storage::{Manifest, RunStatus, RunStore, SimManifest, StorageError};
 use crate::validate::{Severity, Violation, validate};
+use stagehand_simulator::render::Renderer;
 
 /// Why a session could not start or finish. `exit_code` maps it for the CLI.
 #[derive(Debug, thiserror::Error)]
@@ -138,8 +140,30 @@ pub fn create_run(
         rig_toml: prepared.rig.text.clone(),
         seed,
         simulated: true,
+        sim: Some(sim_manifest(&prepared.rig.spec)?),
     };
     Ok(RunStore::create(out_root, manifest, &prepared.plan)?)
+}
+
+/// The manifest's `sim` block for a simulated rig: the renderer's resolved knobs and the
+/// scene of the rig's sample, with its SHA-256.
+fn sim_manifest(spec: &stagehand_devices::rig::RigSpec) -> Result<SimManifest, SessionError> {
+    let simulator = |e: stagehand_simulator::render::RenderError| {
+        SessionError::Open(crate::rig::OpenError::Simulator(e.to_string()))
+    };
+    let renderer = Renderer::new(spec).map_err(simulator)?;
+    let p = renderer.provenance(&spec.sim.sample).map_err(simulator)?;
+    Ok(SimManifest {
+        quality: p.knobs.preset.clone(),
+        knobs: serde_json::to_value(&p.knobs).map_err(|e| SessionError::Io(e.to_string()))?,
+        sample: p.fixture,
+        sample_size_mm: f64::from(p.sample_size_mm),
+        scene_name: p.scene_name,
+        scene_path: p.scene_path.map(|path| path.display().to_string()),
+        scene_sha256: sha256_hex(p.scene_text.as_bytes()),
+        scene_text: p.scene_text,
+        ground_truth: p.ground_truth,
+    })
 }
 
 /// Opens the rig's devices for a new run (inside the runtime from [`runtime_for`]).

@@ -120,9 +120,12 @@ fn kill_at_random_points_then_resume_loses_and_duplicates_nothing() {
         );
         let conn = db(&dir);
         assert_eq!(
-            count(&conn, "SELECT count(*) FROM frames") as usize,
+            count(
+                &conn,
+                "SELECT (SELECT count(*) FROM frames) + (SELECT count(*) FROM ground_truth)"
+            ) as usize,
             reference.len(),
-            "round {round}: one row per frame"
+            "round {round}: one row per file (frames and ground truth)"
         );
         assert_eq!(
             count(

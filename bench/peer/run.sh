@@ -2,6 +2,8 @@
 # Peer benchmark: Bluesky RunEngine per-point overhead (see bluesky_grid.py).
 #
 # Usage: bench/peer/run.sh [N] [REPEATS]        (defaults: 10000, 1)
+#        bench/peer/run.sh --install           (only create/update the venv: it also holds
+#                                               Mitsuba 3 for `stagehand sim tradeoff --mitsuba`)
 #
 # Creates or reuses a Python venv at ${STAGEHAND_BENCH_VENV:-target/bench-venv}
 # (a relative path is taken from the repo root), installs requirements.txt into it
@@ -20,6 +22,9 @@ set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 repo_root="$(cd "$here/../.." && pwd)"
 cd "$repo_root"
+
+install_only=0
+if [ "${1:-}" = "--install" ]; then install_only=1; shift; fi
 
 n="${1:-10000}"
 repeats="${2:-${BLUESKY_BENCH_REPEATS:-1}}"
@@ -55,6 +60,11 @@ if ! cmp -s "$req" "$stamp" 2>/dev/null; then
     fail_install "pip install -r bench/peer/requirements.txt failed"
   fi
   cp "$req" "$stamp"
+fi
+
+if [ "$install_only" = 1 ]; then
+  echo "bench/peer: venv ready: $py" >&2
+  exit 0
 fi
 
 exec "$py" "$here/bluesky_grid.py" "$n" "$repeats"

@@ -1,6 +1,10 @@
 //! A camera frame as it leaves the sensor: raw digital numbers plus what the camera knows.
 
+use std::sync::Arc;
+
 use serde::{Deserialize, Serialize};
+
+use crate::ground_truth::GroundTruthData;
 
 /// One raw exposure from one camera for one trigger id.
 ///
@@ -25,6 +29,12 @@ pub struct Frame {
     /// Backend-specific facts about how the frame came to be (for the simulator: the effect
     /// plan and its reasons, accuracy knobs). Stored verbatim in the frame index.
     pub notes: serde_json::Value,
+    /// Per-pixel ground truth of the scene this frame saw (simulated cameras with
+    /// `sim.ground_truth = true`). Shared: the exposures of a bracket that saw the same scene
+    /// carry the same data. Not serialised with the frame; the storage layer writes it as
+    /// files of its own.
+    #[serde(skip)]
+    pub ground_truth: Option<Arc<GroundTruthData>>,
 }
 
 impl Frame {

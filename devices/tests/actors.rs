@@ -28,6 +28,7 @@ fn frame(id: u64) -> Frame {
         gain: 1.0,
         rig_time_s: 0.0,
         notes: serde_json::Value::Null,
+        ground_truth: None,
     }
 }
 

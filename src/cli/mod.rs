@@ -2,6 +2,7 @@
 
 mod operator;
 mod progress;
+mod sim;
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -9,7 +10,7 @@ use std::sync::Arc;
 use clap::{Parser, Subcommand};
 use tokio::sync::broadcast;
 
-use crate::dry_run::render_report;
+use crate::dry_run::{render_report_with_renderer, renderer_line};
 use crate::executor::{AutoConfirm, Operator, RunControl, Summary};
 use crate::rig::RigSource;
 use crate::script::{ScriptSource, parse_set};
@@ -59,6 +60,11 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Tools for the simulated rig (render accuracy vs time).
+    Sim {
+        #[command(subcommand)]
+        command: sim::SimCommand,
+    },
     /// Finish an interrupted run (after a crash, kill, abort or full disk).
     Resume {
         run_dir: PathBuf,
@@ -104,6 +110,7 @@ fn overrides(set: &[String]) -> Result<Vec<(String, String)>, SessionError> {
 fn dispatch(command: Command) -> Result<i32, SessionError> {
     let started = std::time::Instant::now();
     match command {
+        Command::Sim { command } => Ok(sim::run(command)),
         Command::Plan {
             script,
             rig,
@@ -122,9 +129,16 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
                         .map_err(|e| SessionError::Io(e.to_string()))?
                 );
             } else {
+                let renderer = renderer_line(&rig.spec);
                 print!(
                     "{}",
-                    render_report(&script.name, &plan, &estimate, &violations)
+                    render_report_with_renderer(
+                        &script.name,
+                        &plan,
+                        &estimate,
+                        &violations,
+                        renderer.as_deref()
+                    )
                 );
             }
             let bad = violations

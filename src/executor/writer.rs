@@ -254,7 +254,8 @@ fn write_batch(
     Ok(counts)
 }
 
-/// Turns a step's captured frames into the files to write, merging HDR brackets.
+/// Turns a step's captured frames into the files to write, merging HDR brackets. Ground truth
+/// attached to the frames goes beside the first exposure of each camera's bracket.
 fn prepare_step(frames: StepFrames) -> Result<Vec<FrameToWrite>, String> {
     let mut merged = Vec::with_capacity(frames.hdr.len());
     for (meta, idx, black) in &frames.hdr {
@@ -268,14 +269,23 @@ fn prepare_step(frames: StepFrames) -> Result<Vec<FrameToWrite>, String> {
         merged.push(FrameToWrite {
             meta,
             pixels: FramePixels::Hdr(hdr.pixels),
+            ground_truth: None,
         });
     }
     let mut out: Vec<FrameToWrite> = frames
         .frames
         .into_iter()
-        .map(|(meta, frame)| FrameToWrite {
-            meta,
-            pixels: FramePixels::Raw(frame.pixels),
+        .map(|(meta, frame)| {
+            // Ground truth does not depend on the exposure: write it once per capture and
+            // camera, beside the bracket's first exposure.
+            let ground_truth = frame
+                .ground_truth
+                .filter(|_| meta.exposure_index == Some(0));
+            FrameToWrite {
+                meta,
+                pixels: FramePixels::Raw(frame.pixels),
+                ground_truth,
+            }
         })
         .collect();
     out.extend(merged);

@@ -1,8 +1,10 @@
 //! Per-frame metadata, the pixels that go with it, and the deterministic frame file name.
 
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
+use stagehand_devices::ground_truth::GroundTruthData;
 
 use super::layout::sanitize;
 
@@ -147,6 +149,8 @@ pub struct FrameToWrite {
     pub meta: FrameMeta,
     /// Its pixels; the variant must match `meta.kind`.
     pub pixels: FramePixels,
+    /// Ground truth to write beside it ([`ground_truth_file_name`]), if any.
+    pub ground_truth: Option<Arc<GroundTruthData>>,
 }
 
 /// Deterministic file name of a frame: `s{step:06}_{camera}_e{idx}.png` for raw frames and
@@ -164,6 +168,16 @@ pub fn frame_file_name(meta: &FrameMeta) -> String {
         }
         FrameKind::Hdr => format!("s{:06}_{camera}_hdr.exr", meta.step),
     }
+}
+
+/// File name of a ground-truth image of a frame: the frame's file stem, then the plane kind
+/// (sanitised): `s000007_cam5_e0.depth.exr`.
+pub fn ground_truth_file_name(meta: &FrameMeta, kind: &str) -> String {
+    let frame = frame_file_name(meta);
+    let stem = frame
+        .rsplit_once('.')
+        .map_or(frame.as_str(), |(stem, _)| stem);
+    format!("{stem}.{}.exr", sanitize(kind, "plane"))
 }
 
 #[cfg(test)]
@@ -206,6 +220,10 @@ pub(crate) mod tests {
     fn names_are_deterministic() {
         let mut meta = sample_meta(7, "cam/5", 2);
         assert_eq!(frame_file_name(&meta), "s000007_cam_5_e2.png");
+        assert_eq!(
+            ground_truth_file_name(&meta, "depth"),
+            "s000007_cam_5_e2.depth.exr"
+        );
         meta.kind = FrameKind::Hdr;
         meta.exposure_index = None;
         assert_eq!(frame_file_name(&meta), "s000007_cam_5_hdr.exr");

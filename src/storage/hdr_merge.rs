@@ -223,6 +223,7 @@ mod tests {
             gain,
             rig_time_s: 0.0,
             notes: serde_json::Value::Null,
+            ground_truth: None,
         }
     }
 

@@ -14,6 +14,13 @@
 //! (every frame column plus `lamp`, one row per lamp that was on) avoids the join:
 //! `SELECT path FROM frame_lamps WHERE camera='cam5' AND lamp='lamp3'`.
 //! Frames with the turntable at 90°: `WHERE json_extract(axes_deg, '$.turntable') = 90`.
+//! The simulator's effect plan of a frame (and why) is in its notes:
+//! `SELECT path, json_extract(notes, '$.effects.shadows.on'),
+//! json_extract(notes, '$.effects.shadows.why') FROM frames`.
+//! Ground-truth images (simulated rigs with `sim.ground_truth = true`) are rows of
+//! `ground_truth`, one per image, keyed to their frame:
+//! `SELECT g.kind, g.path FROM ground_truth g JOIN frames f ON f.id = g.frame_id
+//!  WHERE f.camera = 'cam1' AND f.step = 3`.
 
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
@@ -26,8 +33,26 @@ use super::frame_meta::{FrameKind, FrameMeta};
 use super::manifest::Manifest;
 use crate::plan::Plan;
 
-/// Schema version, stored in `PRAGMA user_version`.
-pub const SCHEMA_VERSION: i32 = 1;
+/// Schema version, stored in `PRAGMA user_version`. Version 1 (no `ground_truth` table) is
+/// upgraded in place by [`Index::open`].
+pub const SCHEMA_VERSION: i32 = 2;
+
+/// What schema version 2 added to version 1: the ground-truth images written beside frames.
+/// One row per image; deleting a frame row deletes its ground truth rows.
+pub const GROUND_TRUTH_SCHEMA: &str = "
+CREATE TABLE IF NOT EXISTS ground_truth (
+    id          INTEGER PRIMARY KEY,
+    frame_id    INTEGER NOT NULL REFERENCES frames(id) ON DELETE CASCADE,
+    step        INTEGER NOT NULL REFERENCES steps(idx),
+    camera      TEXT NOT NULL,
+    kind        TEXT NOT NULL,            -- depth, normal, radiance, material
+    path        TEXT NOT NULL UNIQUE,     -- relative to the run directory
+    sha256      TEXT NOT NULL,            -- of the file's bytes, hex
+    size_bytes  INTEGER NOT NULL,
+    channels    TEXT NOT NULL             -- JSON array of channel names in sample order
+) STRICT;
+CREATE INDEX IF NOT EXISTS ground_truth_frame ON ground_truth(frame_id);
+";
 
 /// The schema. Every table is `STRICT`, so a wrongly typed value is an error, not a surprise.
 pub const SCHEMA: &str = "
@@ -155,12 +180,40 @@ pub struct StoredFrame {
     pub meta: FrameMeta,
 }
 
+/// A ground-truth row of the index: one image written beside a frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StoredGroundTruth {
+    /// Path of the frame it belongs to (`frames/…`).
+    pub frame_path: String,
+    /// Plane kind (`depth`, `normal`, `radiance`, `material`).
+    pub kind: String,
+    /// Path relative to the run directory (`frames/…`).
+    pub path: String,
+    /// Hex SHA-256 of the file.
+    pub sha256: String,
+    /// File size in bytes.
+    pub size_bytes: u64,
+    /// Channel names in sample order.
+    pub channels: Vec<String>,
+}
+
 /// A frame row about to be inserted.
 pub(crate) struct NewFrameRow<'a> {
     pub path: String,
     pub sha256: String,
     pub size_bytes: u64,
     pub meta: &'a FrameMeta,
+    /// Ground-truth images written beside the frame.
+    pub ground_truth: Vec<NewGroundTruthRow>,
+}
+
+/// A ground-truth row about to be inserted.
+pub(crate) struct NewGroundTruthRow {
+    pub kind: String,
+    pub path: String,
+    pub sha256: String,
+    pub size_bytes: u64,
+    pub channels: Vec<String>,
 }
 
 /// Current Unix time in seconds (0 if the clock is before 1970).
@@ -228,6 +281,8 @@ impl Index {
             .transaction()
             .map_err(sqlite("begin transaction"))?;
         tx.execute_batch(SCHEMA).map_err(sqlite("create schema"))?;
+        tx.execute_batch(GROUND_TRUTH_SCHEMA)
+            .map_err(sqlite("create ground truth table"))?;
         tx.pragma_update(None, "user_version", SCHEMA_VERSION)
             .map_err(sqlite("set schema version"))?;
         tx.execute(
@@ -267,6 +322,15 @@ impl Index {
             .conn
             .query_row("PRAGMA user_version", [], |row| row.get(0))
             .map_err(index.err("read schema version"))?;
+        if version == 1 {
+            index
+                .conn
+                .execute_batch(&format!(
+                    "BEGIN; {GROUND_TRUTH_SCHEMA} PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
+                ))
+                .map_err(index.err("upgrade the schema to version 2"))?;
+            return Ok(index);
+        }
         if version != SCHEMA_VERSION {
             return Err(StorageError::CorruptIndex {
                 path: index.path.clone(),
@@ -393,6 +457,9 @@ impl Index {
                 }
                 Some(_) => {}
             }
+            tx.prepare_cached("DELETE FROM ground_truth WHERE step = ?1")
+                .and_then(|mut q| q.execute([step]))
+                .map_err(sqlite("delete old ground truth rows"))?;
             tx.prepare_cached("DELETE FROM frames WHERE step = ?1")
                 .and_then(|mut q| q.execute([step]))
                 .map_err(sqlite("delete old frame rows"))?;
@@ -455,6 +522,28 @@ impl Index {
                             notes,
                         ])
                         .map_err(sqlite("insert frame row"))?;
+                    let frame_id = tx.last_insert_rowid();
+                    for g in &row.ground_truth {
+                        let size = i64::try_from(g.size_bytes).map_err(|_| too_big("file size"))?;
+                        let channels = serde_json::to_string(&g.channels).map_err(|source| {
+                            StorageError::Json {
+                                op: "encode",
+                                path: path.join("ground_truth"),
+                                source,
+                            }
+                        })?;
+                        tx.prepare_cached(
+                            "INSERT INTO ground_truth (frame_id, step, camera, kind, path, sha256,
+                                size_bytes, channels)
+                             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+                        )
+                        .and_then(|mut q| {
+                            q.execute(params![
+                                frame_id, step, m.camera, g.kind, g.path, g.sha256, size, channels
+                            ])
+                        })
+                        .map_err(sqlite("insert ground truth row"))?;
+                    }
                 }
             }
             tx.prepare_cached(
@@ -558,6 +647,41 @@ impl Index {
             frame.meta.lamps_on = serde_json::from_str(&lamps).map_err(&decode)?;
             frame.meta.notes = serde_json::from_str(&notes).map_err(&decode)?;
             out.push(frame);
+        }
+        Ok(out)
+    }
+
+    /// Ground-truth rows, of one step or all, ordered by path.
+    pub(crate) fn ground_truth(&self, step: Option<usize>) -> Result<Vec<StoredGroundTruth>> {
+        let mut stmt = self
+            .conn
+            .prepare_cached(
+                "SELECT frames.path, g.kind, g.path, g.sha256, g.size_bytes, g.channels
+                 FROM ground_truth AS g JOIN frames ON frames.id = g.frame_id
+                 WHERE ?1 IS NULL OR g.step = ?1 ORDER BY g.path",
+            )
+            .map_err(self.err("query ground truth"))?;
+        let rows = stmt
+            .query_map([step.map(to_i64)], |r| {
+                Ok((
+                    StoredGroundTruth {
+                        frame_path: r.get(0)?,
+                        kind: r.get(1)?,
+                        path: r.get(2)?,
+                        sha256: r.get(3)?,
+                        size_bytes: to_u64(4, r.get(4)?)?,
+                        channels: Vec::new(),
+                    },
+                    r.get::<_, String>(5)?,
+                ))
+            })
+            .map_err(self.err("query ground truth"))?;
+        let mut out = Vec::new();
+        for row in rows {
+            let (mut truth, channels) = row.map_err(self.err("read ground truth row"))?;
+            truth.channels =
+                serde_json::from_str(&channels).map_err(self.json_err("ground_truth"))?;
+            out.push(truth);
         }
         Ok(out)
     }

@@ -6,8 +6,11 @@
 //!     plan.json         the plan's canonical JSON (the exact bytes its hash is taken over)
 //!     <script file>     a copy of the capture script
 //!     rig.toml          the rig description used
+//!     scene.toml        the scene of the rig's sample (simulated rigs; see `Manifest::sim`)
 //!     index.sqlite      runs / steps / frames index and step journal (WAL)
-//!     frames/           s{step:06}_{camera}_e{i}.png (raw) and s{step:06}_{camera}_hdr.exr (HDR)
+//!     frames/           s{step:06}_{camera}_e{i}.png (raw) and s{step:06}_{camera}_hdr.exr (HDR);
+//!                       with sim.ground_truth, beside each camera's first exposure of a capture:
+//!                       s{step:06}_{camera}_e0.{depth,normal,radiance,material}.exr (f32)
 //!     .lock             advisory lock held by the one process writing the run
 //! ```
 //! `run_id` is `<script stem>-<UTC yyyymmdd-hhmmss>-<first 8 of plan hash>`, with `-2`, `-3`, …
@@ -21,6 +24,8 @@ pub const MANIFEST: &str = "manifest.json";
 pub const PLAN: &str = "plan.json";
 /// Rig description file name.
 pub const RIG: &str = "rig.toml";
+/// Scene file name (simulated rigs).
+pub const SCENE: &str = "scene.toml";
 /// SQLite index file name.
 pub const INDEX: &str = "index.sqlite";
 /// Frames directory name.
@@ -29,7 +34,7 @@ pub const FRAMES_DIR: &str = "frames";
 pub const LOCK: &str = ".lock";
 
 /// Names the script copy may not take, because the layout uses them.
-const RESERVED: [&str; 5] = [MANIFEST, PLAN, RIG, INDEX, FRAMES_DIR];
+const RESERVED: [&str; 6] = [MANIFEST, PLAN, RIG, SCENE, INDEX, FRAMES_DIR];
 
 /// Replaces every character outside `[A-Za-z0-9_-]` with `_` (and maps "" to `fallback`), so
 /// ids from scripts and rig files are safe in file names.

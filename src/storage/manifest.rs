@@ -34,6 +34,35 @@ pub struct Manifest {
     pub seed: u64,
     /// True when the frames come from the simulated backend.
     pub simulated: bool,
+    /// How the frames were simulated (simulated rigs; absent in older runs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sim: Option<SimManifest>,
+}
+
+/// The `sim` block of a simulated run's manifest: the renderer's settings and the scene of the
+/// rig's sample (`sim.sample`). Fixtures a script places later are named in each frame's
+/// notes. The scene text is also written to `scene.toml` in the run directory.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SimManifest {
+    /// The preset the knobs started from (`preview`, `standard`, `reference`, or `custom`).
+    pub quality: String,
+    /// Every accuracy knob as frames of the sample are rendered (preset, rig `[sim.knobs]` and
+    /// the scene's `[render]` settings applied).
+    pub knobs: serde_json::Value,
+    /// The rig's `sim.sample`: a built-in scene name or a scene file path.
+    pub sample: String,
+    /// Edge length of the sample in mm.
+    pub sample_size_mm: f64,
+    /// The scene's `[scene] name`.
+    pub scene_name: String,
+    /// Where the scene file was read from; `None` for a built-in scene.
+    pub scene_path: Option<String>,
+    /// Hex SHA-256 of the scene text.
+    pub scene_sha256: String,
+    /// The scene file's full text (as written to `scene.toml`).
+    pub scene_text: String,
+    /// Ground truth written beside every capture (`sim.ground_truth`).
+    pub ground_truth: bool,
 }
 
 impl Manifest {

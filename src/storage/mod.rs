@@ -14,6 +14,7 @@
 //! | [`checksum`] | SHA-256 of frame files |
 //! | [`png16`] | 16-bit RGB PNG with iTXt metadata |
 //! | [`exr_hdr`] | OpenEXR f32 RGB, ZIP |
+//! | [`exr_planes`] | OpenEXR f32 named channels (ground truth), ZIP |
 //! | [`hdr_merge`] | Debevec-style bracket merge |
 //! | [`index`] | SQLite schema and queries |
 //! | [`run_store`] | the writer of a run |
@@ -23,6 +24,7 @@ pub mod atomic;
 pub mod checksum;
 pub mod error;
 pub mod exr_hdr;
+pub mod exr_planes;
 pub mod frame_meta;
 pub mod hdr_merge;
 pub mod index;
@@ -35,8 +37,10 @@ pub mod run_store;
 mod tests;
 
 pub use error::StorageError;
-pub use frame_meta::{FrameKind, FrameMeta, FramePixels, FrameToWrite, frame_file_name};
+pub use frame_meta::{
+    FrameKind, FrameMeta, FramePixels, FrameToWrite, frame_file_name, ground_truth_file_name,
+};
 pub use hdr_merge::{HdrImage, merge_bracket};
-pub use index::{RunStatus, StepRecord, StoredFrame};
-pub use manifest::Manifest;
+pub use index::{RunStatus, StepRecord, StoredFrame, StoredGroundTruth};
+pub use manifest::{Manifest, SimManifest};
 pub use run_store::RunStore;

@@ -25,9 +25,16 @@ use rayon::prelude::*;
 use super::atomic::{fsync_dir, remove_stale_temps, write_atomic, write_atomic_durable};
 use super::checksum::sha256_hex;
 use super::error::{Result, StorageError};
+use stagehand_devices::ground_truth::GroundTruthData;
+
 use super::exr_hdr::encode_exr;
-use super::frame_meta::{FrameKind, FramePixels, FrameToWrite, frame_file_name};
-use super::index::{Index, NewFrameRow, RunStatus, StepRecord, StoredFrame};
+use super::exr_planes::encode_exr_planes;
+use super::frame_meta::{
+    FrameKind, FrameMeta, FramePixels, FrameToWrite, frame_file_name, ground_truth_file_name,
+};
+use super::index::{
+    Index, NewFrameRow, NewGroundTruthRow, RunStatus, StepRecord, StoredFrame, StoredGroundTruth,
+};
 use super::layout;
 use super::manifest::Manifest;
 use super::png16::encode_png16;
@@ -58,6 +65,23 @@ pub(crate) struct WrittenFrame {
     pub rel_path: String,
     pub sha256: String,
     pub size_bytes: u64,
+    /// The ground-truth images written beside it.
+    pub ground_truth: Vec<WrittenGroundTruth>,
+}
+
+/// A ground-truth image written beside a frame (not yet indexed).
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct WrittenGroundTruth {
+    /// Plane kind (`depth`, `normal`, `radiance`, `material`).
+    pub kind: String,
+    /// Absolute path.
+    pub path: PathBuf,
+    /// Path relative to the run directory.
+    pub rel_path: String,
+    pub sha256: String,
+    pub size_bytes: u64,
+    /// Channel names in sample order.
+    pub channels: Vec<String>,
 }
 
 impl std::fmt::Debug for RunStore {
@@ -71,7 +95,7 @@ impl std::fmt::Debug for RunStore {
 impl RunStore {
     /// Creates `<root>/<run_id>/` (run id `"<script stem>-<UTC yyyymmdd-hhmmss>-<first 8 of
     /// plan hash>"`, with `-2`, `-3`, … appended if taken) and writes `plan.json`, the script
-    /// copy, `rig.toml`, `index.sqlite` (WAL; the run row with status running and one pending
+    /// copy, `rig.toml`, `scene.toml` (when the manifest has a `sim` block), `index.sqlite` (WAL; the run row with status running and one pending
     /// row per plan step) and finally `manifest.json`.
     ///
     /// Fills in `manifest.run_id` and `manifest.format_version`, and `manifest.plan_hash` when
@@ -160,6 +184,9 @@ impl RunStore {
             manifest.script_text.as_bytes(),
         )?;
         write_atomic(dir, layout::RIG, manifest.rig_toml.as_bytes())?;
+        if let Some(sim) = &manifest.sim {
+            write_atomic(dir, layout::SCENE, sim.scene_text.as_bytes())?;
+        }
         let index = Index::create(&dir.join(layout::INDEX), &manifest, plan)?;
         fsync_dir(dir)?;
         let manifest_json =
@@ -327,6 +354,17 @@ impl RunStore {
                         sha256: w.sha256.clone(),
                         size_bytes: w.size_bytes,
                         meta: &frames[w.position].meta,
+                        ground_truth: w
+                            .ground_truth
+                            .iter()
+                            .map(|g| NewGroundTruthRow {
+                                kind: g.kind.clone(),
+                                path: g.rel_path.clone(),
+                                sha256: g.sha256.clone(),
+                                size_bytes: g.size_bytes,
+                                channels: g.channels.clone(),
+                            })
+                            .collect(),
                     })
                     .collect()
             })
@@ -337,7 +375,11 @@ impl RunStore {
             .map(|((record, _), r)| (record, r.as_slice()))
             .collect();
         self.index.commit_steps(&steps)?;
-        Ok(written.into_iter().flatten().map(|w| w.path).collect())
+        Ok(written
+            .into_iter()
+            .flatten()
+            .flat_map(|w| std::iter::once(w.path).chain(w.ground_truth.into_iter().map(|g| g.path)))
+            .collect())
     }
 
     /// Validates, encodes and durably writes the frames of `step` (files only, no index rows):
@@ -405,12 +447,17 @@ impl RunStore {
                 };
                 let sha256 = sha256_hex(&bytes);
                 let path = write_atomic(frames_dir, &name, &bytes)?;
+                let ground_truth = match &f.ground_truth {
+                    Some(truth) => write_ground_truth(frames_dir, &f.meta, truth, &json)?,
+                    None => Vec::new(),
+                };
                 Ok(WrittenFrame {
                     position,
                     path,
                     rel_path: format!("{}/{name}", layout::FRAMES_DIR),
                     sha256,
                     size_bytes: bytes.len() as u64,
+                    ground_truth,
                 })
             })
             .collect::<Result<Vec<_>>>()?;
@@ -433,6 +480,11 @@ impl RunStore {
         self.index.frames(step)
     }
 
+    /// Ground-truth rows of the index, of one step or (with `None`) all, ordered by path.
+    pub fn ground_truth(&self, step: Option<usize>) -> Result<Vec<StoredGroundTruth>> {
+        self.index.ground_truth(step)
+    }
+
     /// Bytes available to this (unprivileged) process on the dataset's file system.
     pub fn available_bytes(&self) -> Result<u64> {
         available_bytes(&self.dir)
@@ -443,6 +495,69 @@ impl RunStore {
     pub(crate) fn index(&self) -> &Index {
         &self.index
     }
+}
+
+/// Writes the ground-truth planes of a frame beside it in `frames_dir` (temp → fsync →
+/// rename; the caller fsyncs the directory). Each file embeds the frame's metadata
+/// (`frame_json`), the plane's kind and channels and the ground truth's notes.
+fn write_ground_truth(
+    frames_dir: &Path,
+    meta: &FrameMeta,
+    truth: &GroundTruthData,
+    frame_json: &str,
+) -> Result<Vec<WrittenGroundTruth>> {
+    let name = frame_file_name(meta);
+    truth.check().map_err(|reason| StorageError::InvalidFrame {
+        name: name.clone(),
+        reason,
+    })?;
+    if (truth.width, truth.height) != (meta.width, meta.height) {
+        return Err(StorageError::InvalidFrame {
+            name,
+            reason: format!(
+                "ground truth is {}x{}, the frame {}x{}",
+                truth.width, truth.height, meta.width, meta.height
+            ),
+        });
+    }
+    let frame: serde_json::Value =
+        serde_json::from_str(frame_json).map_err(|source| StorageError::Json {
+            op: "encode",
+            path: frames_dir.join(&name),
+            source,
+        })?;
+    truth
+        .planes
+        .par_iter()
+        .map(|plane| -> Result<WrittenGroundTruth> {
+            let name = ground_truth_file_name(meta, &plane.kind);
+            let json = serde_json::json!({
+                "frame": frame,
+                "ground_truth": plane.kind,
+                "channels": plane.channels,
+                "notes": truth.notes,
+            })
+            .to_string();
+            let bytes = encode_exr_planes(
+                &name,
+                truth.width,
+                truth.height,
+                &plane.channels,
+                &plane.samples,
+                &json,
+            )?;
+            let sha256 = sha256_hex(&bytes);
+            let path = write_atomic(frames_dir, &name, &bytes)?;
+            Ok(WrittenGroundTruth {
+                kind: plane.kind.clone(),
+                path,
+                rel_path: format!("{}/{name}", layout::FRAMES_DIR),
+                sha256,
+                size_bytes: bytes.len() as u64,
+                channels: plane.channels.clone(),
+            })
+        })
+        .collect()
 }
 
 /// Reads a file the run layout requires, or says the directory is not a complete run.

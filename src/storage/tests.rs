@@ -73,6 +73,7 @@ fn manifest() -> Manifest {
         rig_toml: "name = \"lab\"\n".into(),
         seed: 42,
         simulated: true,
+        sim: None,
     }
 }
 
@@ -87,6 +88,7 @@ fn raw_frame(step: usize, camera: &str, exposure_index: usize, lamps: &[&str]) -
     FrameToWrite {
         meta,
         pixels: FramePixels::Raw(pixels),
+        ground_truth: None,
     }
 }
 
@@ -103,6 +105,7 @@ fn hdr_frame(step: usize, camera: &str) -> FrameToWrite {
     FrameToWrite {
         meta,
         pixels: FramePixels::Hdr(pixels),
+        ground_truth: None,
     }
 }
 

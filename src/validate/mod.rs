@@ -478,10 +478,10 @@ impl<'a> Here<'_, 'a> {
         state: &RigState,
     ) {
         if let Some(f) = fixture
-            && !FIXTURES.contains(&f)
+            && !stagehand_devices::rig::names_sample(f)
         {
             self.error(format!(
-                "prompt: fixture `{f}` is unknown; use one of: {}",
+                "prompt: fixture `{f}` is unknown; use one of: {} or the path of a scene file ending in .toml",
                 FIXTURES.join(", ")
             ));
         }

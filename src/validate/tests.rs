@@ -415,6 +415,13 @@ fn prompts_check_colour_mount_and_fixture() {
         ),
         vec![]
     );
+    // Scene files are accepted by path; the renderer checks they exist when it builds them.
+    for fixture in ["marble", "scenes/my_sample.toml"] {
+        assert_eq!(
+            validate(&plan(vec![prompt(Some(fixture), None, None)]), &rig),
+            vec![]
+        );
+    }
 }
 
 #[test]

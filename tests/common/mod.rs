@@ -20,6 +20,17 @@ pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// The built-in rig with cameras shrunk to `w`×`h` and ground truth written beside every
+/// capture (`sim.ground_truth = true`).
+pub fn small_rig_with_ground_truth(name: &str, w: u32, h: u32) -> RigSource {
+    let rig = small_rig(name, w, h);
+    let text = rig
+        .text
+        .replacen("[sim]\n", "[sim]\nground_truth = true\n", 1);
+    assert_ne!(text, rig.text, "the rig has a [sim] table");
+    RigSource::from_text(&text, &format!("test:{name}+ground_truth")).expect("rig parses")
+}
+
 /// The built-in rig with cameras shrunk to `w`×`h` so tests render fast.
 pub fn small_rig(name: &str, w: u32, h: u32) -> RigSource {
     let text = match name {
@@ -176,11 +187,15 @@ pub fn db(dir: &Path) -> rusqlite::Connection {
     .expect("open index")
 }
 
-/// (path, sha256) of every frame in the index, sorted by path.
+/// (path, sha256) of every file the index records (frames and the ground truth beside them),
+/// sorted by path.
 pub fn checksums(dir: &Path) -> Vec<(String, String)> {
     let conn = db(dir);
     let mut stmt = conn
-        .prepare("SELECT path, sha256 FROM frames ORDER BY path")
+        .prepare(
+            "SELECT path, sha256 FROM frames UNION ALL SELECT path, sha256 FROM ground_truth
+             ORDER BY path",
+        )
         .unwrap();
     stmt.query_map([], |r| Ok((r.get(0)?, r.get(1)?)))
         .unwrap()
@@ -188,7 +203,8 @@ pub fn checksums(dir: &Path) -> Vec<(String, String)> {
         .collect()
 }
 
-/// sha256 of every file under frames/, recomputed from disk, sorted by name.
+/// sha256 of every file under frames/ (frames and ground truth), recomputed from disk, sorted
+/// by name.
 pub fn disk_checksums(dir: &Path) -> Vec<(String, String)> {
     use sha2::{Digest, Sha256};
     let mut out = Vec::new();

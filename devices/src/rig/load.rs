@@ -6,7 +6,8 @@ use std::path::Path;
 use thiserror::Error;
 use toml::de::{DeTable, DeValue};
 
-use super::spec::{Backend, FIXTURES, LampKind, RigSpec};
+use super::spec::{Backend, CameraSpec, FIXTURES, LampKind, RigSpec};
+use crate::lens::Intrinsics;
 
 /// A rig file that could not be used.
 #[derive(Debug, Error, Clone, PartialEq)]
@@ -57,10 +58,20 @@ pub fn parse_rig(text: &str, origin: &str) -> Result<RigSpec, RigError> {
     Ok(spec)
 }
 
-/// A step into the TOML document: a key or an index into an array of tables.
+/// Whether `name` can name the sample on the stage: a built-in scene from [`FIXTURES`] or the
+/// path of a scene file ending in `.toml` (whether it exists is checked when the renderer
+/// builds the sample).
+pub fn names_sample(name: &str) -> bool {
+    FIXTURES.contains(&name) || name.ends_with(".toml")
+}
+
+/// A step into a TOML document: a key or an index into an array (of tables or values). Paths
+/// of steps name the value an error is about, for [`locate`].
 #[derive(Debug, Clone)]
-enum Seg {
+pub enum Seg {
+    /// A key of the current table.
     Key(&'static str),
+    /// An element of the current array.
     Index(usize),
 }
 
@@ -261,6 +272,7 @@ fn check(spec: &RigSpec) -> Result<(), Problem> {
                 format!("camera `{}`: max_gain must be at least 1", c.id),
             ));
         }
+        check_lens(c).map_err(|(key, message)| (at("camera", i, key), message))?;
     }
     if let Some(t) = &spec.trigger {
         ids.push((&t.id, vec![Seg::Key("trigger"), Seg::Key("id")]));
@@ -331,11 +343,11 @@ fn check(spec: &RigSpec) -> Result<(), Problem> {
             ));
         }
     }
-    if !FIXTURES.contains(&spec.sim.sample.as_str()) {
+    if !names_sample(&spec.sim.sample) {
         return Err((
             vec![Seg::Key("sim"), Seg::Key("sample")],
             format!(
-                "sim.sample `{}` is unknown; use one of {}",
+                "sim.sample `{}` is unknown; use one of {} or the path of a scene file ending in .toml",
                 spec.sim.sample,
                 FIXTURES.join(", ")
             ),
@@ -386,8 +398,57 @@ fn check(spec: &RigSpec) -> Result<(), Problem> {
     Ok(())
 }
 
-/// Byte offset of the value at `path`, or of the deepest part of it that exists.
-fn locate(text: &str, path: &[Seg]) -> Option<usize> {
+/// Distortion coefficients and principal point of a camera: finite, the principal point
+/// inside the image, and a lens that [`Intrinsics::check`] can invert over the whole image.
+/// Returns the key to blame and a sentence.
+fn check_lens(c: &CameraSpec) -> Result<(), (&'static str, String)> {
+    for (key, v) in [
+        ("k1", c.k1),
+        ("k2", c.k2),
+        ("k3", c.k3),
+        ("p1", c.p1),
+        ("p2", c.p2),
+        ("cx", c.cx),
+        ("cy", c.cy),
+    ] {
+        if !v.is_finite() {
+            return Err((
+                key,
+                format!("camera `{}`: {key} must be a finite number, got {v}", c.id),
+            ));
+        }
+    }
+    for (key, offset, size) in [("cx", c.cx, c.width), ("cy", c.cy, c.height)] {
+        if offset.abs() >= 0.5 * size as f64 {
+            return Err((
+                key,
+                format!(
+                    "camera `{}`: principal point offset {key} = {offset} px lies outside the \
+                     {size} px image; it is measured from the image centre",
+                    c.id
+                ),
+            ));
+        }
+    }
+    Intrinsics::of(c).check().map_err(|reason| {
+        let key = if c.k1 != 0.0 {
+            "k1"
+        } else if c.k2 != 0.0 {
+            "k2"
+        } else if c.k3 != 0.0 {
+            "k3"
+        } else if c.p1 != 0.0 {
+            "p1"
+        } else {
+            "p2"
+        };
+        (key, format!("camera `{}`: {reason}", c.id))
+    })
+}
+
+/// Byte offset in `text` of the value at `path`, or of the deepest part of it that exists;
+/// `None` when the text does not parse or not even the first step exists.
+pub fn locate(text: &str, path: &[Seg]) -> Option<usize> {
     let root = DeTable::parse(text).ok()?;
     let mut best = None;
     let mut table: &DeTable = root.get_ref();
@@ -414,8 +475,8 @@ fn locate(text: &str, path: &[Seg]) -> Option<usize> {
     best
 }
 
-/// 1-based line and column of a byte offset.
-pub(crate) fn line_col(text: &str, offset: usize) -> (usize, usize) {
+/// 1-based line and column (in characters) of a byte offset into `text`.
+pub fn line_col(text: &str, offset: usize) -> (usize, usize) {
     let offset = offset.min(text.len());
     let before = &text[..offset];
     let line = before.matches('\n').count() + 1;
@@ -488,9 +549,47 @@ mod tests {
     }
 
     #[test]
+    fn bad_lens_coefficients_are_reported_at_their_key() {
+        let cam = |extra: &str| {
+            BUILTIN_LIGHTSTAGE.replacen("fov_deg = 11.0", &format!("fov_deg = 11.0\n{extra}"), 1)
+        };
+        let text = cam("k1 = 0.05\np2 = 0.001\ncx = 3.5");
+        assert!(parse_rig(&text, "x.toml").is_ok());
+        for (extra, needle) in [
+            ("k1 = -900.0", "folds back"),
+            ("k2 = nan", "finite"),
+            ("p1 = 40.0", "cannot be inverted"),
+            ("cy = 500.0", "outside"),
+        ] {
+            let text = cam(extra);
+            let key = extra.split(' ').next().unwrap_or("");
+            let line = text.lines().position(|l| l == extra).unwrap() + 1;
+            let (l, c, m) = err(&text);
+            assert_eq!((l, c), (line, key.len() + 4), "{extra}: {m}");
+            assert!(m.contains(needle) && m.contains("cam1"), "{extra}: {m}");
+        }
+    }
+
+    #[test]
     fn syntax_error_has_position() {
         let (l, _, _) = err("[rig]\nname = \"x\"\n[[axis]\n");
         assert_eq!(l, 3);
+    }
+
+    #[test]
+    fn sim_sample_names_a_builtin_scene_or_a_toml_path() {
+        let with = |sample: &str| {
+            BUILTIN_LIGHTSTAGE.replacen("sample = \"bumps\"", &format!("sample = \"{sample}\""), 1)
+        };
+        assert!(parse_rig(&with("marble"), "x.toml").is_ok());
+        assert!(parse_rig(&with("scenes/mine.toml"), "x.toml").is_ok());
+        let text = with("teapot");
+        let line = text.lines().position(|l| l.contains("teapot")).unwrap() + 1;
+        let (l, _, m) = err(&text);
+        assert_eq!(l, line);
+        assert!(m.contains("teapot") && m.contains(".toml"), "{m}");
+        assert!(names_sample("cavity") && names_sample("a/b.toml"));
+        assert!(!names_sample("teapot") && !names_sample("b.tom"));
     }
 
     #[test]

@@ -187,6 +187,25 @@ pub struct CameraSpec {
     pub max_exposure_s: f64,
     #[serde(default = "default_max_gain")]
     pub max_gain: f64,
+    /// Brown–Conrady radial distortion coefficients on normalised image coordinates
+    /// (see [`crate::lens`]); 0 is an ideal pinhole. Negative k1 is barrel distortion.
+    #[serde(default)]
+    pub k1: f64,
+    #[serde(default)]
+    pub k2: f64,
+    #[serde(default)]
+    pub k3: f64,
+    /// Brown–Conrady tangential (decentring) distortion coefficients.
+    #[serde(default)]
+    pub p1: f64,
+    #[serde(default)]
+    pub p2: f64,
+    /// Principal point offset from the image centre, in pixels (+x right).
+    #[serde(default)]
+    pub cx: f64,
+    /// Principal point offset from the image centre, in pixels (+y down).
+    #[serde(default)]
+    pub cy: f64,
 }
 
 fn default_bit_depth() -> u8 {
@@ -261,7 +280,7 @@ pub struct CartSpec {
 
 /// Fixtures that can lie on the stage: procedural samples and calibration targets. The rig's
 /// `sim.sample`, operator prompts and the renderer all draw from this one list.
-pub const FIXTURES: [&str; 7] = [
+pub const FIXTURES: [&str; 13] = [
     "flat",
     "bumps",
     "steps",
@@ -269,6 +288,12 @@ pub const FIXTURES: [&str; 7] = [
     "checkerboard",
     "colorchecker",
     "planes",
+    "marble",
+    "brushed_metal",
+    "plastic_ggx",
+    "glossy_blinn",
+    "felt_quasi",
+    "cavity",
 ];
 
 /// Simulation settings: the sample on the stage and the renderer's seed and quality.

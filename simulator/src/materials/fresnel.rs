@@ -61,6 +61,51 @@ pub fn fresnel_transmittance(cos_i: f64, eta: f64) -> f64 {
     1.0 - fresnel_reflectance(cos_i, eta)
 }
 
+/// f32 variant of [`fresnel_transmittance`] for the renderer's per-texel and per-pixel
+/// subsurface terms: same clamps (cosθ into [0, 1], NaN cosθ → 0 transmitted; η into
+/// [[`MIN_ETA`], [`MAX_ETA`]], NaN η → 1), computed in f32. Always in [0, 1]; agrees with the
+/// f64 version within 1e-5 absolute (tested).
+pub fn fresnel_transmittance_f32(cos_i: f32, eta: f32) -> f32 {
+    if cos_i.is_nan() {
+        return 0.0;
+    }
+    let eta = sanitize(eta as f64, MIN_ETA, MAX_ETA, 1.0) as f32;
+    if eta == 1.0 {
+        return 1.0;
+    }
+    let c = cos_i.clamp(0.0, 1.0);
+    let sin2_t = (1.0 - c * c) / (eta * eta);
+    if sin2_t >= 1.0 {
+        return 0.0;
+    }
+    let cos_t = (1.0 - sin2_t).sqrt();
+    let rs = (c - eta * cos_t) / (c + eta * cos_t);
+    let rp = (eta * c - cos_t) / (eta * c + cos_t);
+    let t = 1.0 - 0.5 * (rs * rs + rp * rp);
+    if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    }
+}
+
+/// Cosine-weighted hemispherical average of the transmittance for light arriving from
+/// outside, 2∫₀¹ F_t(μ; η) μ dμ = 1 − (external diffuse Fresnel reflectance): the fraction of
+/// diffuse light crossing the boundary. Why: normalises an exit lobe F_t(θ_o)/π so that it
+/// integrates (against cosθ_o) to exactly 1. Midpoint rule in μ with `steps` (≥ 1) steps;
+/// error below 1e-6 at 2000 steps for η ∈ [1, 2] (the integrand is smooth in μ). In (0, 1].
+pub fn hemispherical_transmittance(eta: f64, steps: usize) -> f64 {
+    let n = steps.max(1);
+    let dmu = 1.0 / n as f64;
+    let s: f64 = (0..n)
+        .map(|k| {
+            let mu = (k as f64 + 0.5) * dmu;
+            2.0 * fresnel_transmittance(mu, eta) * mu * dmu
+        })
+        .sum();
+    s.clamp(1.0e-6, 1.0)
+}
+
 /// Normal-incidence reflectance F_0 = ((η−1)/(η+1))², the parameter of [`schlick`].
 /// η is clamped as in [`fresnel_reflectance`]; result in [0, 1).
 pub fn schlick_f0(eta: f64) -> f64 {
@@ -165,6 +210,24 @@ mod tests {
         assert!(boundary_coefficient(f64::NAN).is_finite());
     }
 
+    #[test]
+    fn hemispherical_transmittance_matches_internal_reflectance() {
+        // Stokes/reciprocity: η²·(1 − F_dr,internal) = 1 − F_dr,external. The polynomial F_dr is
+        // within 1e-3 of the internal integral (above), so the relation holds within 2e-3.
+        let eta: f64 = 1.3;
+        let ext = hemispherical_transmittance(eta, 2000);
+        let int = 1.0 - diffuse_fresnel_reflectance(eta);
+        assert!(
+            (ext - eta * eta * int).abs() < 2e-3,
+            "{ext} vs {}",
+            eta * eta * int
+        );
+        assert!((hemispherical_transmittance(1.0, 10) - 1.0).abs() < 1e-12);
+        let coarse = hemispherical_transmittance(1.5, 2000);
+        let fine = hemispherical_transmittance(1.5, 200_000);
+        assert!((coarse - fine).abs() < 1e-6, "{coarse} {fine}");
+    }
+
     proptest! {
         #[test]
         fn fresnel_in_unit_interval(c in -2.0f64..2.0, eta in 0.0f64..10.0, f0 in -1.0f64..2.0) {
@@ -172,6 +235,15 @@ mod tests {
                       diffuse_fresnel_reflectance(eta)] {
                 prop_assert!(f.is_finite() && (0.0..=1.0).contains(&f), "{f}");
             }
+        }
+
+        /// f32 transmittance against f64: stated bound 1e-5 absolute.
+        #[test]
+        fn transmittance_f32_agrees(c in -0.5f32..1.5, eta in 0.5f32..3.0) {
+            let x = fresnel_transmittance(c as f64, eta as f64);
+            let y = fresnel_transmittance_f32(c, eta) as f64;
+            prop_assert!((x - y).abs() < 1e-5, "{c} {eta}: {x} {y}");
+            prop_assert!((0.0..=1.0).contains(&y));
         }
 
         #[test]

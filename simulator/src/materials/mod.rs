@@ -5,8 +5,8 @@
 //! Everything is f64 with angles in radians; directions are unit `glam::DVec3` vectors pointing
 //! *away* from the surface (`wi` to the light, `wo` to the viewer). Every function is total:
 //! for any input (including NaN, infinities, directions at or below the horizon) it returns a
-//! finite, non-negative value, with each clamp documented where it applies. Not yet used by the
-//! renderer, which keeps `render::shading`; [`Material`] is the interface it can adopt.
+//! finite, non-negative value, with each clamp documented where it applies. The renderer
+//! (`render::shading`, `render::subsurface`) uses the f32 variants in its hot loops.
 
 pub mod blinn_phong;
 pub mod dipole;
@@ -15,17 +15,17 @@ pub mod lambert;
 pub mod microfacet;
 pub mod ward;
 
-pub use blinn_phong::blinn_phong;
+pub use blinn_phong::{blinn_phong, blinn_phong_f32};
 pub use dipole::{Dipole, reduced_albedo_from_total, total_diffuse_reflectance};
 pub use fresnel::{
     boundary_coefficient, diffuse_fresnel_reflectance, fresnel_reflectance, fresnel_transmittance,
-    schlick, schlick_f0,
+    fresnel_transmittance_f32, hemispherical_transmittance, schlick, schlick_f0,
 };
 pub use lambert::lambert;
 pub use microfacet::{
     Fresnel, cook_torrance_ggx, cook_torrance_ggx_f32, ggx_d, smith_ggx_visibility,
 };
-pub use ward::{ward_aniso, ward_aniso_f32, ward_iso};
+pub use ward::{ward_aniso, ward_aniso_f32, ward_iso, ward_iso_f32};
 
 use glam::DVec3;
 

@@ -4,10 +4,12 @@
 use serde_json::{Value, json};
 use stagehand_devices::rig::LampKind;
 
+use super::bounce::{ReliefStats, bounces_needed};
 use super::laser::LaserSheet;
 use super::lights::{Emitter, Light};
 use super::quality::Knobs;
 use super::sample::Sample;
+use super::subsurface;
 
 /// One effect switched on or off, and why.
 #[derive(Debug, Clone, PartialEq)]
@@ -51,6 +53,12 @@ pub struct Plan {
     pub linear_light: Decision,
     /// Backlight seen through the sample.
     pub backlight: Decision,
+    /// Diffuse light bounced between relief texels.
+    pub interreflection: Decision,
+    /// Bounces simulated when `interreflection` is on (0 when off).
+    pub bounces: u32,
+    /// The dipole diffusion term under the surface.
+    pub subsurface: Decision,
 }
 
 impl Plan {
@@ -64,20 +72,34 @@ impl Plan {
             "area_lights": self.area_lights.to_json(),
             "linear_light": self.linear_light.to_json(),
             "backlight": self.backlight.to_json(),
-            "interreflection": { "on": false, "why": "not modelled by this renderer" },
-            "subsurface": { "on": false, "why": "not modelled by this renderer" },
+            "interreflection": {
+                "on": self.interreflection.on,
+                "why": self.interreflection.why,
+                "bounces": self.bounces,
+            },
+            "subsurface": self.subsurface.to_json(),
         })
     }
 }
 
-/// Decides the effects for `sample` under the lit `lights` and the laser.
+/// Decides the effects for `sample` under the lit `lights` and the laser; `relief` is the
+/// sample's sky-view and albedo bound ([`super::bounce::relief_stats`], `None` when flat).
 pub fn plan(
     sample: &Sample,
     lights: &[Light],
     laser: Option<(&LaserSheet, f64, u32, f64)>,
     knobs: &Knobs,
+    relief: Option<&ReliefStats>,
 ) -> Plan {
+    let lit = laser.is_some()
+        || lights
+            .iter()
+            .any(|l| !matches!(l.emitter, Emitter::Backlight { .. }));
+    let (interreflection, bounces) = interreflection(sample, relief, lit, knobs);
     Plan {
+        interreflection,
+        bounces,
+        subsurface: subsurface(sample, lit, knobs),
         shadows: shadows(sample, lights, laser.map(|l| l.0)),
         specular: specular(sample, lights, laser.is_some()),
         laser: match laser {
@@ -192,4 +214,94 @@ fn backlight(sample: &Sample, lights: &[Light]) -> Decision {
             sample.max_transmittance
         )),
     }
+}
+
+/// Interreflection is worth simulating only on concave relief whose first bounce's bound
+/// (ρmax·(1 − Vmin)) exceeds the tolerance; then as many bounces as have bounds above it,
+/// capped at the knob.
+fn interreflection(
+    sample: &Sample,
+    relief: Option<&ReliefStats>,
+    lit: bool,
+    knobs: &Knobs,
+) -> (Decision, u32) {
+    let off = |why: String| (Decision::off(why), 0);
+    let Some(r) = relief.filter(|_| sample.grid.is_some()) else {
+        return off(format!(
+            "flat sample `{}`: nothing to bounce between",
+            sample.name
+        ));
+    };
+    if !lit {
+        return off("no lit source reflects off the sample".into());
+    }
+    if !r.concave() {
+        return off(format!(
+            "convex relief: every texel sees at least 99% of the sky (Vmin = {:.3})",
+            r.v_min
+        ));
+    }
+    let (per, needed, simulated) = bounces_needed(r, knobs.bounce_tolerance, knobs.bounces);
+    let numbers = format!(
+        "Vmin = {:.3}, ρmax = {:.2}: bound per bounce ρmax(1 − Vmin) = {per:.4}",
+        r.v_min, r.rho_max
+    );
+    if needed == 0 {
+        return off(format!(
+            "concave relief but {numbers} ≤ tolerance {}",
+            knobs.bounce_tolerance
+        ));
+    }
+    if simulated == 0 {
+        return off(format!(
+            "{numbers} needs {needed} bounce(s) but bounces = 0"
+        ));
+    }
+    (
+        Decision::on(format!(
+            "concave relief, {numbers} > tolerance {}: {needed} bounce(s) above it, {simulated} \
+             simulated (bounces = {}), {} rays per texel",
+            knobs.bounce_tolerance, knobs.bounces, knobs.bounce_rays
+        )),
+        simulated,
+    )
+}
+
+/// Subsurface scattering only under a scattering medium, and only when light enters it.
+fn subsurface(sample: &Sample, lit: bool, knobs: &Knobs) -> Decision {
+    let media: Vec<_> = sample
+        .media
+        .iter()
+        .filter(|m| subsurface::scatters(m))
+        .collect();
+    if media.is_empty() {
+        return Decision::off(format!("no scattering material on `{}`", sample.name));
+    }
+    if !lit {
+        return Decision::off("no lit source enters the sample");
+    }
+    let fmt3 = |v: [f64; 3], p: usize| format!("({:.p$}, {:.p$}, {:.p$})", v[0], v[1], v[2], p = p);
+    let (n, h) = subsurface::resolution(&sample.media, sample.size_mm, knobs.dipole_samples);
+    let parts: Vec<String> = media
+        .iter()
+        .map(|m| {
+            let d = subsurface::dipoles(m);
+            let radius = subsurface::medium_radius(m, knobs.dipole_samples, sample.size_mm as f64);
+            format!(
+                "σ′t = {}/mm, α′ = {}, η = {:.2}, kernel radius {radius:.1} mm",
+                fmt3(d.map(|d| d.sigma_t_prime()), 2),
+                fmt3(d.map(|d| d.reduced_albedo()), 4),
+                m.eta
+            )
+        })
+        .collect();
+    Decision::on(format!(
+        "dipole diffusion under `{}`: {}; R_d tail < {} of its energy beyond the radius; \
+         {n}² texels of {h:.3} mm, {} radial samples per mean free path; single scattering \
+         omitted",
+        sample.name,
+        parts.join("; "),
+        subsurface::TAIL,
+        knobs.dipole_samples
+    ))
 }

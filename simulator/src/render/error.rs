@@ -15,11 +15,15 @@ pub enum RenderError {
         /// The rig's camera ids, comma-separated.
         known: String,
     },
-    /// The fixture on the stage has no procedural model.
+    /// The fixture on the stage is neither a built-in scene nor a scene file path.
     #[error(
-        "fixture `{0}` is unknown; place one of: flat, bumps, steps, weave, checkerboard, colorchecker, planes"
+        "fixture `{0}` is unknown; place one of the built-in scenes ({list}) or give the path of a scene file ending in .toml",
+        list = stagehand_devices::rig::FIXTURES.join(", ")
     )]
     UnknownFixture(String),
+    /// The fixture's scene file cannot be read or is invalid (the message names file:line:col).
+    #[error(transparent)]
+    Scene(#[from] crate::scene_file::SceneError),
     /// The rig's `sim.quality` is not a preset the renderer knows.
     #[error("sim.quality `{0}` is unknown; set it to preview, standard or reference")]
     UnknownQuality(String),

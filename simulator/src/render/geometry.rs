@@ -5,6 +5,7 @@
 use std::collections::BTreeMap;
 
 use glam::Vec3A;
+use stagehand_devices::lens::{BrownConrady, Intrinsics};
 use stagehand_devices::rig::{AxisRole, CameraSpec, RigSpec};
 
 /// Axis angles that move the optics, in degrees (a missing axis reads 0°).
@@ -82,7 +83,8 @@ pub fn rotate_about(v: Vec3A, axis: Vec3A, angle_rad: f32) -> Vec3A {
     v * c + axis.cross(v) * s + axis * axis.dot(v) * (1.0 - c)
 }
 
-/// A pinhole camera looking at the origin with image up ≈ +z, in the sample frame.
+/// A camera looking at the origin with image up ≈ +z, in the sample frame: a pinhole plus
+/// Brown–Conrady lens distortion about the principal point (see [`stagehand_devices::lens`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CameraPose {
     /// Centre of projection.
@@ -99,6 +101,12 @@ pub struct CameraPose {
     pub width: u32,
     /// Image height in pixels.
     pub height: u32,
+    /// Principal point, pixels from the left edge.
+    pub principal_x: f32,
+    /// Principal point, pixels from the top edge.
+    pub principal_y: f32,
+    /// Brown–Conrady lens distortion (identity for a pinhole).
+    pub lens: BrownConrady,
 }
 
 impl CameraPose {
@@ -111,36 +119,57 @@ impl CameraPose {
             .try_normalize()
             .unwrap_or_else(|| horizontal_tangent(spec.azimuth_deg));
         let up = right.cross(forward);
-        let focal_px = (0.5 * spec.width as f64 / (0.5 * spec.fov_deg.to_radians()).tan()) as f32;
+        let intrinsics = Intrinsics::of(spec);
         CameraPose {
             origin: to_sample.apply(pos),
             forward: to_sample.apply(forward),
             right: to_sample.apply(right),
             up: to_sample.apply(up),
-            focal_px,
+            focal_px: intrinsics.focal_px as f32,
             width: spec.width,
             height: spec.height,
+            principal_x: 0.5 * spec.width as f32 + spec.cx as f32,
+            principal_y: 0.5 * spec.height as f32 + spec.cy as f32,
+            lens: intrinsics.lens,
         }
     }
 
-    /// Unit ray direction through image point (x, y) in pixels from the top-left corner.
+    /// Unit ray direction through image point (x, y) in pixels from the top-left corner: the
+    /// point is undistorted (Newton inversion of the lens model, [`BrownConrady::undistort`])
+    /// and the pinhole ray through the result returned. A pinhole lens skips the inversion.
     #[inline]
     pub fn ray(&self, x: f32, y: f32) -> Vec3A {
-        let dx = x - 0.5 * self.width as f32;
-        let dy = 0.5 * self.height as f32 - y;
-        (self.forward * self.focal_px + self.right * dx + self.up * dy).normalize()
+        let dx = x - self.principal_x;
+        let dy = self.principal_y - y;
+        if self.lens.is_identity() {
+            return (self.forward * self.focal_px + self.right * dx + self.up * dy).normalize();
+        }
+        let f = f64::from(self.focal_px);
+        let ((u, v), _) = self.lens.undistort(f64::from(dx) / f, -f64::from(dy) / f);
+        (self.forward + self.right * u as f32 - self.up * v as f32).normalize()
     }
 
-    /// Image position (x, y) in pixels of a sample-frame point, if it is in front.
+    /// Image position (x, y) in pixels of a sample-frame point, if it is in front: the pinhole
+    /// projection, then the lens's forward distortion.
     pub fn project(&self, p: Vec3A) -> Option<(f32, f32)> {
         let v = p - self.origin;
         let z = v.dot(self.forward);
         if z <= 0.0 {
             return None;
         }
-        let x = 0.5 * self.width as f32 + self.focal_px * v.dot(self.right) / z;
-        let y = 0.5 * self.height as f32 - self.focal_px * v.dot(self.up) / z;
-        Some((x, y))
+        if self.lens.is_identity() {
+            let x = self.principal_x + self.focal_px * v.dot(self.right) / z;
+            let y = self.principal_y - self.focal_px * v.dot(self.up) / z;
+            return Some((x, y));
+        }
+        let u = f64::from(v.dot(self.right)) / f64::from(z);
+        let w = -f64::from(v.dot(self.up)) / f64::from(z);
+        let (xd, yd) = self.lens.distort(u, w);
+        let f = f64::from(self.focal_px);
+        Some((
+            (f64::from(self.principal_x) + f * xd) as f32,
+            (f64::from(self.principal_y) + f * yd) as f32,
+        ))
     }
 }
 
@@ -164,6 +193,13 @@ mod tests {
             min_exposure_s: 1e-5,
             max_exposure_s: 1.0,
             max_gain: 1.0,
+            k1: 0.0,
+            k2: 0.0,
+            k3: 0.0,
+            p1: 0.0,
+            p2: 0.0,
+            cx: 0.0,
+            cy: 0.0,
         }
     }
 
@@ -182,6 +218,86 @@ mod tests {
         // Looking straight down still gives a well-defined frame.
         let down = CameraPose::new(&cam(0.0, 90.0), ToSample::new(0.0));
         assert!(down.right.is_finite() && (down.right.length() - 1.0).abs() < 1e-5);
+    }
+
+    fn distorted(k1: f64) -> CameraSpec {
+        CameraSpec {
+            width: 640,
+            height: 480,
+            fov_deg: 40.0,
+            k1,
+            k2: 0.05,
+            k3: -0.01,
+            p1: 0.002,
+            p2: -0.0015,
+            cx: 6.5,
+            cy: -4.25,
+            ..cam(20.0, 35.0)
+        }
+    }
+
+    #[test]
+    fn project_inverts_ray_under_strong_distortion() {
+        let spec = distorted(-0.2);
+        stagehand_devices::lens::Intrinsics::of(&spec)
+            .check()
+            .expect("a valid lens");
+        let pose = CameraPose::new(&spec, ToSample::new(30.0));
+        let mut worst = 0.0f32;
+        for j in 0..=24 {
+            for i in 0..=32 {
+                let (x, y) = (i as f32 * 20.0, j as f32 * 20.0);
+                let d = pose.ray(x, y);
+                let (px, py) = pose.project(pose.origin + d * 500.0).expect("in front");
+                worst = worst.max((px - x).hypot(py - y));
+            }
+        }
+        assert!(worst < 1.0e-3, "worst round trip {worst} px");
+        // The principal point looks straight along the optical axis.
+        let axis = pose.ray(320.0 + 6.5, 240.0 - 4.25);
+        assert!((axis - pose.forward).length() < 1.0e-6, "{axis}");
+    }
+
+    #[test]
+    fn zero_distortion_is_the_pinhole_bit_for_bit() {
+        let spec = cam(15.0, 40.0);
+        let pose = CameraPose::new(&spec, ToSample::new(12.0));
+        let focal = (0.5 * spec.width as f64 / (0.5 * spec.fov_deg.to_radians()).tan()) as f32;
+        assert_eq!(pose.focal_px.to_bits(), focal.to_bits());
+        for j in 0..=12 {
+            for i in 0..=16 {
+                let (x, y) = (i as f32 * 4.0 + 0.37, j as f32 * 4.0 + 0.61);
+                let dx = x - 0.5 * pose.width as f32;
+                let dy = 0.5 * pose.height as f32 - y;
+                let old = (pose.forward * focal + pose.right * dx + pose.up * dy).normalize();
+                assert_eq!(
+                    pose.ray(x, y).to_array().map(f32::to_bits),
+                    old.to_array().map(f32::to_bits)
+                );
+                let p = pose.origin + old * 587.0;
+                let v = p - pose.origin;
+                let z = v.dot(pose.forward);
+                let ox = 0.5 * pose.width as f32 + focal * v.dot(pose.right) / z;
+                let oy = 0.5 * pose.height as f32 - focal * v.dot(pose.up) / z;
+                let (px, py) = pose.project(p).expect("in front");
+                assert_eq!((px.to_bits(), py.to_bits()), (ox.to_bits(), oy.to_bits()));
+            }
+        }
+    }
+
+    #[test]
+    fn barrel_distortion_pulls_off_axis_points_inward() {
+        let pinhole = CameraPose::new(&cam(0.0, 30.0), ToSample::new(0.0));
+        let barrel = CameraPose::new(
+            &CameraSpec {
+                k1: -0.1,
+                ..cam(0.0, 30.0)
+            },
+            ToSample::new(0.0),
+        );
+        let p = pinhole.origin + pinhole.ray(60.0, 44.0) * 600.0;
+        let (x, y) = barrel.project(p).expect("in front");
+        assert!(x < 60.0 && y < 44.0 && x > 32.0 && y > 24.0, "({x}, {y})");
     }
 
     #[test]

@@ -8,22 +8,31 @@
 //!
 //! One concept per file: [`sample`] (procedural samples), [`heightfield`] (relief and ray
 //! marching), [`shadow`] (per-vertex light visibility for preview), [`geometry`] (poses),
-//! [`lights`], [`laser`], [`shading`] (BRDF), [`scene`] (intersection and direct
-//! lighting), [`effects`] (the plan), [`sensor`], [`quality`], [`rng`] (counter-based
-//! noise) and [`error`].
+//! [`lights`], [`laser`], [`shading`] (the BRDF models), [`scene`] (intersection and direct
+//! lighting), [`irradiance`] (direct light at texels), [`subsurface`] (dipole diffusion by
+//! [`fft`] convolution), [`bounce`] (interreflection between relief texels), [`texgrid`],
+//! [`surface`] and [`pass_cache`] (per-step sharing of those passes), [`effects`] (the plan), [`sensor`], [`quality`], [`rng`] (counter-based
+//! noise), [`ground_truth`] (depth, normals, material, noise-free radiance per pixel) and
+//! [`error`].
 //!
 //! Rows are rendered in parallel on the global rayon pool. Built samples and preview
 //! visibility maps are cached in the [`Renderer`]; a camera that needs one being built by
 //! another waits for it, so call `render` either from ordinary threads (as the simulated
 //! cameras do) or from inside the rayon pool, not from both at once.
 
+pub mod bounce;
 pub mod effects;
 pub mod error;
+pub mod fft;
 pub mod geometry;
+pub mod ground_truth;
 pub mod heightfield;
+pub mod irradiance;
 pub mod laser;
 pub mod lights;
 pub mod material;
+pub mod pass_cache;
+pub mod provenance;
 pub mod quality;
 pub mod rng;
 pub mod sample;
@@ -31,6 +40,9 @@ pub mod scene;
 pub mod sensor;
 pub mod shading;
 pub mod shadow;
+pub mod subsurface;
+pub mod surface;
+pub mod texgrid;
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
@@ -61,6 +73,16 @@ pub struct Renderer {
     knobs: Knobs,
     samples: Mutex<HashMap<String, Arc<Sample>>>,
     visibility: shadow::VisibilityCache,
+    passes: TransportCaches,
+}
+
+/// Per-frame light-transport results shared by the cameras of one rig step (same sample,
+/// same lights), and per-sample relief statistics.
+#[derive(Debug, Default)]
+struct TransportCaches {
+    relief: pass_cache::PassCache<Option<bounce::ReliefStats>>,
+    bounce: pass_cache::PassCache<Option<bounce::BounceMap>>,
+    subsurface: pass_cache::PassCache<Option<subsurface::SubsurfaceMap>>,
 }
 
 /// Noise-free radiance seen by one camera, before the sensor.
@@ -108,6 +130,7 @@ impl Renderer {
             knobs,
             samples: Mutex::new(HashMap::new()),
             visibility: shadow::VisibilityCache::default(),
+            passes: TransportCaches::default(),
         })
     }
 
@@ -119,7 +142,8 @@ impl Renderer {
             .map_or(0.0, |c| sensor::black_level_dn(c.bit_depth))
     }
 
-    /// The built sample for `fixture`, from the cache or built now.
+    /// The built sample for `fixture` (a built-in scene or a scene file path), from the cache
+    /// or built now with the scene's `[render]` knobs resolved.
     fn sample(&self, fixture: &str) -> Result<Arc<Sample>, RenderError> {
         let mut cache = self
             .samples
@@ -128,12 +152,14 @@ impl Renderer {
         if let Some(s) = cache.get(fixture) {
             return Ok(Arc::clone(s));
         }
-        let built = Sample::build(
-            fixture,
-            self.rig.sim.sample_size_mm as f32,
-            self.knobs.relief_mm,
-        )
-        .ok_or_else(|| RenderError::UnknownFixture(fixture.to_string()))?;
+        let scene = crate::scene_file::resolve_fixture(fixture)?
+            .ok_or_else(|| RenderError::UnknownFixture(fixture.to_string()))?;
+        // The scene's [render] settings decide the relief step, so resolve them first.
+        let knobs = sample::scene_knobs(&scene, &self.knobs, &self.rig.sim.knobs)?;
+        let step_mm = knobs.as_ref().map_or(self.knobs.relief_mm, |k| k.relief_mm);
+        let size_mm = self.rig.sim.sample_size_mm as f32;
+        let mut built = Sample::from_scene(fixture, scene, size_mm, step_mm);
+        built.render_knobs = knobs;
         let built = Arc::new(built);
         cache.insert(fixture.to_string(), Arc::clone(&built));
         Ok(built)
@@ -215,9 +241,10 @@ impl Renderer {
             })
     }
 
-    /// The knobs frames of `sample` are rendered with.
-    fn knobs_for<'s>(&'s self, _sample: &'s Sample) -> &'s Knobs {
-        &self.knobs
+    /// The knobs frames of `sample` are rendered with: its scene's `[render]` settings on top
+    /// of the rig's, or the renderer's own when the scene has none.
+    fn knobs_for<'s>(&'s self, sample: &'s Sample) -> &'s Knobs {
+        sample.render_knobs.as_ref().unwrap_or(&self.knobs)
     }
 
     /// Traces every pixel of `cam` (or only sets up the notes when `integrate` is false).
@@ -245,11 +272,15 @@ impl Renderer {
                 Some((sheet, beam.tilt_deg, beam.colour_nm, spec.power_mw))
             }
         };
+        let relief = self.passes.relief.get(relief_key(&sample), || {
+            bounce::relief_stats(sample.as_ref())
+        });
         let plan = effects::plan(
             &sample,
             &lights,
             laser.as_ref().map(|l| (&l.0, l.1, l.2, l.3)),
             knobs,
+            relief.as_ref().as_ref(),
         );
         let shading = Shading {
             shadows: plan.shadows.on,
@@ -264,6 +295,14 @@ impl Renderer {
             let grid = sample.grid.as_ref().filter(|_| lit)?;
             Some(self.visibility.get(&sample.name, grid, light))
         };
+        let transport = self.transport(
+            &sample,
+            &lights,
+            laser.as_ref().map(|l| &l.0),
+            &plan,
+            knobs,
+            lit,
+        );
         let scene = Scene::new(
             &sample,
             lights,
@@ -271,6 +310,13 @@ impl Renderer {
             tubes,
             shading,
             &visibility,
+        )
+        .with_transport(
+            transport.bounce.as_ref().and_then(|b| b.as_ref().as_ref()),
+            transport
+                .subsurface
+                .as_ref()
+                .and_then(|s| s.as_ref().as_ref()),
         );
         let width = cam.width as usize;
         let mut rgb = vec![0f32; width * cam.height as usize * 3];
@@ -299,6 +345,7 @@ impl Renderer {
             unknown_lamps,
             shadow_rays,
             lit,
+            transport: &transport,
         });
         Ok(RadianceImage {
             width: cam.width,
@@ -306,6 +353,52 @@ impl Renderer {
             rgb,
             notes,
         })
+    }
+
+    /// Runs (or fetches, when another camera of the same step already has) the light-transport
+    /// passes the plan turned on; nothing at all for passes that are off or dark frames.
+    fn transport(
+        &self,
+        sample: &Arc<Sample>,
+        lights: &[lights::Light],
+        laser: Option<&LaserSheet>,
+        plan: &effects::Plan,
+        knobs: &Knobs,
+        lit: bool,
+    ) -> Transport {
+        let direct = irradiance::DirectLight {
+            lights,
+            laser,
+            grid: sample.grid.as_ref(),
+            shadows: plan.shadows.on,
+            tube_points: knobs.tube_samples,
+        };
+        // Exact description of every input: equal keys mean equal results.
+        let key = |pass: &str| {
+            format!(
+                "{pass}|{}|{lights:?}|{laser:?}|{}|{knobs:?}",
+                sample.name, plan.shadows.on
+            )
+        };
+        let bounce = (lit && plan.interreflection.on).then(|| {
+            self.passes.bounce.get(key("bounce"), || {
+                let cells = sample.grid.as_ref().map_or(1, |g| g.cells());
+                let texels = bounce::texels(cells, knobs.spp_side);
+                bounce::compute(
+                    sample.as_ref(),
+                    &direct,
+                    plan.bounces,
+                    knobs.bounce_rays,
+                    texels,
+                )
+            })
+        });
+        let subsurface = (lit && plan.subsurface.on).then(|| {
+            self.passes.subsurface.get(key("subsurface"), || {
+                subsurface::compute(sample.as_ref(), &direct, knobs.dipole_samples)
+            })
+        });
+        Transport { bounce, subsurface }
     }
 
     fn notes(&self, n: &NoteInputs<'_>) -> Value {
@@ -341,6 +434,12 @@ impl Renderer {
             "light_integrated": n.lit,
             "stats": { "shadow_rays": n.shadow_rays, "visibility_maps": n.scene.visibility_maps() },
         });
+        if let (Some(stats), Some(extra)) = (
+            notes["stats"].as_object_mut(),
+            n.transport.stats().as_object().cloned(),
+        ) {
+            stats.extend(extra);
+        }
         if n.plan.shadows.on {
             notes["effects"]["shadows"]["method"] = json!(if n.scene.visibility_maps() > 0 {
                 "preview: per-vertex visibility maps toward each light position (tube: 4 \
@@ -368,6 +467,41 @@ struct NoteInputs<'a> {
     unknown_lamps: Vec<String>,
     shadow_rays: u64,
     lit: bool,
+    transport: &'a Transport,
+}
+
+/// The frame's light-transport passes, as the plan called for them (`None` when off or dark).
+struct Transport {
+    bounce: Option<Arc<Option<bounce::BounceMap>>>,
+    subsurface: Option<Arc<Option<subsurface::SubsurfaceMap>>>,
+}
+
+impl Transport {
+    /// The passes' counters for the notes' `stats` (zeros for passes not run).
+    fn stats(&self) -> Value {
+        let b = self.bounce.as_ref().and_then(|b| b.as_ref().as_ref());
+        let s = self.subsurface.as_ref().and_then(|s| s.as_ref().as_ref());
+        json!({
+            "bounce_passes": b.map_or(0, |b| b.stats.bounces),
+            "bounce_rays": b.map_or(0, |b| b.stats.rays),
+            "bounce_texels": b.map_or(0, |b| b.stats.texels),
+            "bounce_shadow_rays": b.map_or(0, |b| b.stats.shadow_rays),
+            "bounce_added": b.map_or(Vec::new(), |b| b.stats.added.clone()),
+            "subsurface_passes": s.map_or(0, |s| s.stats.media),
+            "subsurface_texels": s.map_or(0, |s| s.stats.texels),
+            "subsurface_fft": s.map_or(0, |s| s.stats.fft),
+            "subsurface_shadow_rays": s.map_or(0, |s| s.stats.shadow_rays),
+        })
+    }
+}
+
+/// Cache key of a sample's relief statistics.
+fn relief_key(sample: &Sample) -> String {
+    format!(
+        "{}|{}",
+        sample.name,
+        sample.grid.as_ref().map_or(0, |g| g.cells())
+    )
 }
 
 /// Rejects numbers that would make the frame meaningless (NaN angles, negative gain, ...).

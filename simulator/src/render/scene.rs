@@ -5,6 +5,7 @@ use std::sync::Arc;
 
 use glam::Vec3A;
 
+use super::bounce::BounceMap;
 use super::geometry::CameraPose;
 use super::laser::LaserSheet;
 use super::lights::{Emitter, HALOGEN_RADIUS_MM, Light, TURNTABLE_RADIUS_MM, TubeBody};
@@ -13,6 +14,7 @@ use super::rng::{hash3, unit_f32};
 use super::sample::{Material, Sample};
 use super::shading::brdf;
 use super::shadow::{VertexVisibility, shadow_origin};
+use super::subsurface::SubsurfaceMap;
 
 /// The dark grey turntable around the sample.
 const TURNTABLE: Material = Material::grey(0.05);
@@ -73,6 +75,10 @@ pub struct Scene<'a> {
     /// Per light, per light stratum: vertex visibility maps (preview with shadows on).
     maps: Vec<Vec<Arc<VertexVisibility>>>,
     laser_map: Option<Arc<VertexVisibility>>,
+    /// Indirect diffuse irradiance over the relief (interreflection pass), if planned.
+    indirect: Option<&'a BounceMap>,
+    /// Subsurface exitance (dipole pass), if planned.
+    subsurface: Option<&'a SubsurfaceMap>,
 }
 
 impl<'a> Scene<'a> {
@@ -125,7 +131,21 @@ impl<'a> Scene<'a> {
             knobs,
             maps,
             laser_map,
+            indirect: None,
+            subsurface: None,
         }
+    }
+
+    /// This scene with the frame's light-transport passes: indirect irradiance from
+    /// interreflection and subsurface exitance, each added at shading time where present.
+    pub fn with_transport(
+        mut self,
+        indirect: Option<&'a BounceMap>,
+        subsurface: Option<&'a SubsurfaceMap>,
+    ) -> Scene<'a> {
+        self.indirect = indirect;
+        self.subsurface = subsurface;
+        self
     }
 
     /// The lit lamps.
@@ -398,6 +418,18 @@ impl<'a> Scene<'a> {
         }
         if let Some(sheet) = &self.laser {
             total += self.laser_light(sheet, h, wo, footprint, rays);
+        }
+        if let Some(bounce) = self.indirect
+            && h.on_relief
+        {
+            total += h.material.albedo.max(Vec3A::ZERO)
+                * std::f32::consts::FRAC_1_PI
+                * bounce.irradiance_at(h.p.x, h.p.y);
+        }
+        if let Some(sss) = self.subsurface
+            && h.material.medium != 0
+        {
+            total += sss.radiance(&h.material, h.p, h.n, wo);
         }
         total
     }

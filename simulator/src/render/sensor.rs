@@ -17,6 +17,15 @@ pub const REFERENCE_EXPOSURE_S: f64 = 0.02;
 /// Curvature of the response y = x·(1 − c + c·x) on the fraction of full scale x: monotone,
 /// close to x^1.02 over the useful range.
 pub const RESPONSE_CURVATURE: f64 = 0.03;
+/// Mean electrons are capped here before shot noise is added: four full wells, so the noisy
+/// value (at most 3.7σ = 3.7·√e below the mean, the Gaussian table's extreme) still clips at
+/// the full well exactly as without the cap, while e + shot·√e can no longer meet ∞ − ∞ (an
+/// infinite mean from an enormous exposure would give NaN and read as 0 DN).
+const MAX_MEAN_ELECTRONS: f32 = 4.0 * FULL_WELL_E as f32;
+/// Largest gain applied: far beyond any camera (the rigs allow 16), and beyond it the frame
+/// is no different — every lit pixel saturates and read noise already spans thousands of full
+/// scales — while every product below stays finite in f32.
+const MAX_GAIN: f64 = 1.0e6;
 
 /// Largest digital number at `bit_depth`.
 pub fn max_dn(bit_depth: u8) -> f64 {
@@ -42,18 +51,29 @@ pub struct Sensor {
 }
 
 impl Sensor {
-    /// A sensor of `bit_depth` exposed for `exposure_s` (≤ 0 collects nothing) at `gain`,
-    /// with noise drawn from `seed`.
+    /// A sensor of `bit_depth` exposed for `exposure_s` (≤ 0 or NaN collects nothing) at
+    /// `gain` (< 0 or NaN counts as 0, above `MAX_GAIN` as `MAX_GAIN`), with noise drawn from
+    /// `seed`. Any finite exposure and gain, however large, give finite arithmetic: huge values
+    /// saturate, never wrap to 0.
     pub fn new(bit_depth: u8, exposure_s: f64, gain: f64, seed: u64) -> Sensor {
         let max = max_dn(bit_depth);
         // White Lambert under the reference lamp has radiance 1/π.
         let per_radiance_second =
             std::f64::consts::PI * REFERENCE_FILL * FULL_WELL_E / REFERENCE_EXPOSURE_S;
+        // NaN-safe: `max` returns the non-NaN operand; `as f32` turns overflow into ∞, which
+        // `min` brings back to the largest finite f32 (so 0 · factor stays 0, never NaN).
+        let exposure_s = exposure_s.max(0.0);
+        let gain = if gain.is_nan() {
+            0.0
+        } else {
+            gain.clamp(0.0, MAX_GAIN)
+        };
+        let finite = |v: f64| (v as f32).min(f32::MAX);
         Sensor {
             max_dn: max as f32,
             black: black_level_dn(bit_depth) as f32,
-            electrons_per_radiance: (per_radiance_second * exposure_s.max(0.0)) as f32,
-            fraction_per_electron: (gain / FULL_WELL_E) as f32,
+            electrons_per_radiance: finite(per_radiance_second * exposure_s),
+            fraction_per_electron: finite(gain / FULL_WELL_E),
             read_sigma_dn: (READ_NOISE_DN_12BIT * gain * max / 4095.0) as f32,
             key: hash3(seed, 0x5e45_0e00, 0, 0),
         }
@@ -99,7 +119,8 @@ impl Sensor {
     #[inline]
     fn digitise_with(&self, radiance: f32, shot: f32, read: f32) -> u16 {
         const C: f32 = RESPONSE_CURVATURE as f32;
-        let e = self.electrons(radiance);
+        // `electrons` is never NaN (its `max` maps NaN to 0); ∞ becomes the cap.
+        let e = self.electrons(radiance).min(MAX_MEAN_ELECTRONS);
         let e = (e + shot * e.sqrt()).clamp(0.0, FULL_WELL_E as f32);
         let x = e * self.fraction_per_electron;
         let y = x * (1.0 - C + C * x);
@@ -135,6 +156,25 @@ mod tests {
                 "{bits} bits: {v:?}"
             );
         }
+    }
+
+    /// An exposure too large for f32 used to make the mean electrons infinite and a gain too
+    /// large made the response and read noise infinite; ∞ − ∞ then turned about half the
+    /// saturated pixels into 0 DN.
+    #[test]
+    fn enormous_exposure_or_gain_saturates_instead_of_reading_zero() {
+        for (exposure, gain) in [(f64::MAX, 1.0), (1.0, 1e300), (1e40, 1e40)] {
+            let s = Sensor::new(12, exposure, gain, 3);
+            for p in 0..1000 {
+                assert_eq!(
+                    s.digitise(0.01, p, 0),
+                    4095,
+                    "{exposure:e} {gain:e} pixel {p}"
+                );
+            }
+        }
+        let dark = Sensor::new(12, 0.0, 1e300, 3);
+        assert!((0..1000).all(|p| dark.digitise(f32::INFINITY, p, 1) <= 4095));
     }
 
     #[test]

@@ -7,10 +7,12 @@ use stagehand_devices::DeviceError;
 use stagehand_devices::camera::CameraDriver;
 use stagehand_devices::error::DeviceResult;
 use stagehand_devices::frame::Frame;
+use stagehand_devices::ground_truth::GroundTruthData;
 use stagehand_devices::rig::CameraSpec;
 use tokio::sync::broadcast;
 
 use crate::world::{Pulse, World};
+use crate::world_state::WorldSnapshot;
 
 /// Simulated camera driver.
 pub struct SimCamera {
@@ -19,6 +21,9 @@ pub struct SimCamera {
     exposure_s: f64,
     gain: f64,
     armed: Option<broadcast::Receiver<Pulse>>,
+    /// The last ground truth rendered and the scene it shows (rig time zeroed): the exposures
+    /// of a bracket see the same scene, so they share one.
+    ground_truth: Option<(WorldSnapshot, Arc<GroundTruthData>)>,
 }
 
 impl SimCamera {
@@ -29,7 +34,39 @@ impl SimCamera {
             exposure_s: 0.01,
             gain: 1.0,
             armed: None,
+            ground_truth: None,
         }
+    }
+
+    /// Ground truth of `snapshot` when the rig asks for it (`sim.ground_truth`), reusing the
+    /// previous one if the scene has not changed since.
+    fn ground_truth(
+        &mut self,
+        snapshot: &WorldSnapshot,
+    ) -> DeviceResult<Option<Arc<GroundTruthData>>> {
+        if !self.world.rig().sim.ground_truth {
+            return Ok(None);
+        }
+        let key = WorldSnapshot {
+            rig_time_s: 0.0,
+            ..snapshot.clone()
+        };
+        if let Some((seen, data)) = &self.ground_truth
+            && *seen == key
+        {
+            return Ok(Some(Arc::clone(data)));
+        }
+        let data = self
+            .world
+            .renderer()
+            .ground_truth(snapshot, &self.spec.id)
+            .map_err(|e| DeviceError::Other {
+                device: self.spec.id.clone(),
+                message: format!("ground truth: {e}"),
+            })?;
+        let data = Arc::new(data.into_data());
+        self.ground_truth = Some((key, Arc::clone(&data)));
+        Ok(Some(data))
     }
 
     fn noise_seed(&self, trigger_id: u64) -> u64 {
@@ -105,6 +142,7 @@ impl CameraDriver for SimCamera {
                 device: id.clone(),
                 message: e.to_string(),
             })?;
+        let ground_truth = self.ground_truth(&snapshot)?;
         clock
             .sleep_s(end + self.spec.readout_s() - clock.now_s())
             .await;
@@ -119,6 +157,7 @@ impl CameraDriver for SimCamera {
             gain: self.gain,
             rig_time_s: start,
             notes: rendered.notes,
+            ground_truth,
         })
     }
 }

@@ -1,0 +1,207 @@
+#!/usr/bin/env python3
+"""Peer for `stagehand sim tradeoff --mitsuba`: renders the scene stagehand exported with
+Mitsuba 3 (variant scalar_rgb, path tracer) at a sweep of samples per pixel, timing each
+render and measuring its error against Mitsuba's own high-spp converged image.
+
+Usage: mitsuba_render.py SCENE_JSON OUT_JSON [--spp 1,2,4,...] [--reference-spp N]
+                         [--repeat N] [--sampler NAME]     (sampler default: multijitter)
+
+SCENE_JSON is the `scene.json` stagehand's exporter wrote (meshes, albedo texture, emitters
+and camera in the renderer's sample frame, millimetres; see
+simulator/src/tradeoff/mitsuba.rs). Writes OUT_JSON (times, errors, versions) and the
+converged image as `mitsuba_reference.pfm` beside it, which stagehand compares with its own
+converged reference to check that both renderers see the same scene.
+
+Timing: the scene load (PLY meshes, texture, BVH build) is measured once and reported as
+load_s; each spp count is rendered REPEAT times (best wall-clock time kept, seed varied; once
+when a render takes over 2 s), the
+first render at each count is also the one whose error is reported. Errors are over every
+channel value: RMSE, max abs, and RMSE over the converged image's mean.
+
+stdout: one summary line. stderr: versions and per-render times.
+"""
+import argparse
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+import mitsuba as mi
+
+
+def load_scene(desc, base):
+    cam = desc["camera"]
+    sensor = {
+        "type": "perspective",
+        "fov": float(cam["fov_deg"]),
+        "fov_axis": cam.get("fov_axis", "x"),
+        "near_clip": 1.0,
+        "far_clip": 1.0e5,
+        "to_world": mi.ScalarTransform4f().look_at(
+            origin=cam["origin"], target=cam["target"], up=cam["up"]
+        ),
+        "film": {
+            "type": "hdrfilm",
+            "width": int(cam["width"]),
+            "height": int(cam["height"]),
+            "pixel_format": "rgb",
+            "component_format": "float32",
+            # The renderer averages its sub-pixel samples uniformly over the pixel.
+            "rfilter": {"type": "box"},
+        },
+        "sampler": {"type": desc.get("sampler", "independent")},
+    }
+    sample = desc["sample"]
+    turntable = desc["turntable"]
+    scene = {
+        "type": "scene",
+        "integrator": {"type": "path", "max_depth": int(desc["max_depth"])},
+        "sensor": sensor,
+        "sample": {
+            "type": "ply",
+            "filename": os.path.join(base, sample["mesh"]),
+            "bsdf": {
+                "type": "diffuse",
+                "reflectance": {
+                    "type": "bitmap",
+                    "filename": os.path.join(base, sample["albedo"]),
+                    "filter_type": "nearest",
+                    "wrap_mode": "clamp",
+                    "raw": True,
+                },
+            },
+        },
+        "turntable": {
+            "type": "ply",
+            "filename": os.path.join(base, turntable["mesh"]),
+            "bsdf": {
+                "type": "diffuse",
+                "reflectance": {"type": "rgb", "value": [float(turntable["albedo"])] * 3},
+            },
+        },
+    }
+    for k, e in enumerate(desc["emitters"]):
+        if e["type"] == "sphere":
+            scene[f"lamp{k}"] = {
+                "type": "sphere",
+                "center": e["centre"],
+                "radius": float(e["radius_mm"]),
+                "emitter": {
+                    "type": "area",
+                    "radiance": {"type": "rgb", "value": e["radiance_rgb"]},
+                },
+            }
+        elif e["type"] == "point":
+            scene[f"lamp{k}"] = {
+                "type": "point",
+                "position": e["position"],
+                "intensity": {"type": "rgb", "value": e["intensity_rgb"]},
+            }
+        else:
+            raise SystemExit(f"unknown emitter type {e['type']!r}")
+    return mi.load_dict(scene)
+
+
+def render(scene, spp, seed):
+    t = time.perf_counter()
+    img = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float64)
+    return img, time.perf_counter() - t
+
+
+def write_pfm(path, img):
+    h, w, _ = img.shape
+    with open(path, "wb") as f:
+        f.write(f"PF\n{w} {h}\n-1.0\n".encode())
+        f.write(np.ascontiguousarray(img[::-1], dtype="<f4").tobytes())
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("scene_json")
+    ap.add_argument("out_json")
+    ap.add_argument("--spp", default="1,2,4,8,16,32,64,128,256")
+    ap.add_argument("--reference-spp", type=int, default=1024)
+    ap.add_argument("--repeat", type=int, default=3)
+    # Stratified sub-pixel samples like stagehand's (independent is ~5x noisier here).
+    ap.add_argument("--sampler", default="multijitter")
+    args = ap.parse_args()
+    try:
+        spps = sorted({int(s) for s in args.spp.split(",") if s.strip()})
+    except ValueError:
+        ap.error(f"--spp must be a comma-separated list of integers, got {args.spp!r}")
+    if not spps or min(spps) < 1 or args.reference_spp < 1 or args.repeat < 1:
+        ap.error("spp counts, --reference-spp and --repeat must be positive")
+
+    variant = "scalar_rgb"
+    mi.set_variant(variant)
+    print(f"mitsuba {mi.__version__} ({variant}), numpy {np.__version__}, "
+          f"python {sys.version.split()[0]}, {os.cpu_count()} cpus", file=sys.stderr)
+    with open(args.scene_json) as f:
+        desc = json.load(f)
+    desc["sampler"] = args.sampler
+    base = os.path.dirname(os.path.abspath(args.scene_json))
+
+    t = time.perf_counter()
+    scene = load_scene(desc, base)
+    load_s = time.perf_counter() - t
+    print(f"scene load {load_s:.3f} s", file=sys.stderr)
+    render(scene, 1, 999)  # warm-up, untimed
+
+    reference, reference_time_s = render(scene, args.reference_spp, 1_000_003)
+    ref_mean = float(reference.mean())
+    print(f"reference {args.reference_spp} spp: {reference_time_s:.2f} s, mean {ref_mean:.4e}",
+          file=sys.stderr)
+    out_dir = os.path.dirname(os.path.abspath(args.out_json))
+    ref_name = "mitsuba_reference.pfm"
+    write_pfm(os.path.join(out_dir, ref_name), reference)
+
+    points = []
+    for spp in spps:
+        times = []
+        first = None
+        for r in range(args.repeat):
+            img, dt = render(scene, spp, 17 + 1000 * r + spp)
+            times.append(dt)
+            if first is None:
+                first = img
+            if dt > 2.0:
+                break  # long renders vary little; one is enough
+        d = first - reference
+        rmse = float(np.sqrt(np.mean(d * d)))
+        point = {
+            "spp": spp,
+            "time_s": min(times),
+            "times_s": times,
+            "rmse": rmse,
+            "rel_rmse": rmse / ref_mean if ref_mean > 0 else float("inf"),
+            "max_abs": float(np.abs(d).max()),
+        }
+        points.append(point)
+        print(f"{spp:5d} spp  {min(times) * 1e3:9.2f} ms  RMSE {rmse:.3e} "
+              f"({point['rel_rmse'] * 100:.2f}%)", file=sys.stderr)
+
+    result = {
+        "renderer": "mitsuba",
+        "version": mi.__version__,
+        "variant": variant,
+        "integrator": "path",
+        "sampler": args.sampler,
+        "max_depth": int(desc["max_depth"]),
+        "threads": os.cpu_count() or 0,
+        "load_s": load_s,
+        "reference_spp": args.reference_spp,
+        "reference_time_s": reference_time_s,
+        "reference_mean": ref_mean,
+        "reference_image": ref_name,
+        "repeat": args.repeat,
+        "points": points,
+    }
+    with open(args.out_json, "w") as f:
+        json.dump(result, f, indent=1)
+    print(json.dumps({"load_s": load_s, "points": len(points), "out": args.out_json}))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,94 @@
+//! Flat calibration charts: the checkerboard and the 24-patch colour checker, evaluated
+//! analytically (no texels) so their edges stay sharp.
+
+use glam::Vec3A;
+
+use super::noise::floor;
+use crate::render::material::Material;
+
+/// Black (0.03) and white (0.85) matte squares `square` mm on a side, aligned with the origin.
+pub(super) fn checkerboard(square: f32, x: f32, y: f32) -> Material {
+    let parity = (floor(x / square) as i64 + floor(y / square) as i64).rem_euclid(2);
+    Material::grey(if parity == 0 { 0.85 } else { 0.03 })
+}
+
+/// Published sRGB values of the 24 ColorChecker patches (row by row, dark skin first).
+const COLORCHECKER_SRGB: [[u8; 3]; 24] = [
+    [115, 82, 68],
+    [194, 150, 130],
+    [98, 122, 157],
+    [87, 108, 67],
+    [133, 128, 177],
+    [103, 189, 170],
+    [214, 126, 44],
+    [80, 91, 166],
+    [193, 90, 99],
+    [94, 60, 108],
+    [157, 188, 64],
+    [224, 163, 46],
+    [56, 61, 150],
+    [70, 148, 73],
+    [175, 54, 60],
+    [231, 199, 31],
+    [187, 86, 149],
+    [8, 133, 161],
+    [243, 243, 242],
+    [200, 200, 200],
+    [160, 160, 160],
+    [122, 122, 121],
+    [85, 85, 85],
+    [52, 52, 52],
+];
+
+/// sRGB transfer function inverse: encoded value in [0, 1] to linear.
+pub fn srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Linear reflectance of ColorChecker patch `index` (0..24).
+pub fn colorchecker_patch(index: usize) -> Vec3A {
+    let p = COLORCHECKER_SRGB[index.min(23)];
+    Vec3A::new(
+        srgb_to_linear(p[0] as f32 / 255.0),
+        srgb_to_linear(p[1] as f32 / 255.0),
+        srgb_to_linear(p[2] as f32 / 255.0),
+    )
+}
+
+/// A 6×4 chart on a black card: columns run along +y (left to right for the camera arc at
+/// azimuth 0), rows along +x starting at −x (the far side, top of those images).
+pub(super) fn colorchecker(size: f32, x: f32, y: f32) -> Material {
+    let pitch = size * 0.96 / 6.0;
+    let patch = 0.82 * pitch;
+    let col = floor((y + 3.0 * pitch) / pitch);
+    let row = floor((x + 2.0 * pitch) / pitch);
+    if (0.0..6.0).contains(&col) && (0.0..4.0).contains(&row) {
+        let cy = -3.0 * pitch + (col + 0.5) * pitch;
+        let cx = -2.0 * pitch + (row + 0.5) * pitch;
+        if (y - cy).abs() <= 0.5 * patch && (x - cx).abs() <= 0.5 * patch {
+            let albedo = colorchecker_patch(row as usize * 6 + col as usize);
+            return Material::ward(albedo, 0.0, 0.2);
+        }
+    }
+    Material::grey(0.03)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn colorchecker_white_and_black_patches() {
+        let white = colorchecker_patch(18);
+        let black = colorchecker_patch(23);
+        assert!(white.min_element() > 0.85 && white.max_element() < 0.95);
+        assert!(black.max_element() < 0.05);
+        // Patch 0 (dark skin) sits at the −x, −y corner of the chart.
+        let m = colorchecker(80.0, -2.0 * 12.8 + 6.4, -3.0 * 12.8 + 6.4);
+        assert_eq!(m.albedo, colorchecker_patch(0));
+    }
+}

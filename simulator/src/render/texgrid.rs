@@ -1,0 +1,105 @@
+//! A regular texel grid over the sample's square, holding one RGB value per texel, with
+//! bilinear lookup between texel centres: the storage of the per-frame light-transport maps
+//! (subsurface exitance, indirect irradiance).
+
+use glam::Vec3A;
+
+/// n × n texels of side `cell` mm covering [−size/2, size/2]², values at texel centres.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TexGrid {
+    n: usize,
+    cell: f32,
+    origin: f32,
+    values: Vec<Vec3A>,
+}
+
+impl TexGrid {
+    /// A grid of `n` (≥ 1) texels per side over a sample `size_mm` wide, every value zero.
+    pub fn new(n: usize, size_mm: f32) -> TexGrid {
+        let n = n.max(1);
+        TexGrid {
+            n,
+            cell: size_mm / n as f32,
+            origin: -0.5 * size_mm,
+            values: vec![Vec3A::ZERO; n * n],
+        }
+    }
+
+    /// Texels per side.
+    pub fn n(&self) -> usize {
+        self.n
+    }
+
+    /// Texel side in mm.
+    pub fn cell(&self) -> f32 {
+        self.cell
+    }
+
+    /// Centre (x, y) in mm of texel (i, j).
+    #[inline]
+    pub fn centre(&self, i: usize, j: usize) -> (f32, f32) {
+        (
+            self.origin + (i as f32 + 0.5) * self.cell,
+            self.origin + (j as f32 + 0.5) * self.cell,
+        )
+    }
+
+    /// All values, row-major (index j·n + i).
+    pub fn values(&self) -> &[Vec3A] {
+        &self.values
+    }
+
+    /// All values, mutable, row-major.
+    pub fn values_mut(&mut self) -> &mut [Vec3A] {
+        &mut self.values
+    }
+
+    /// The value of texel (i, j).
+    #[inline]
+    pub fn get(&self, i: usize, j: usize) -> Vec3A {
+        self.values[j * self.n + i]
+    }
+
+    /// Bilinear interpolation between texel centres at (x, y) mm, clamped at the border;
+    /// zero for NaN coordinates.
+    #[inline]
+    pub fn at(&self, x: f32, y: f32) -> Vec3A {
+        if x.is_nan() || y.is_nan() {
+            return Vec3A::ZERO;
+        }
+        let last = (self.n - 1) as f32;
+        let u = ((x - self.origin) / self.cell - 0.5).clamp(0.0, last);
+        let v = ((y - self.origin) / self.cell - 0.5).clamp(0.0, last);
+        let (i, j) = (u as usize, v as usize);
+        let (a, b) = (u - i as f32, v - j as f32);
+        let (i1, j1) = ((i + 1).min(self.n - 1), (j + 1).min(self.n - 1));
+        let top = self.get(i, j).lerp(self.get(i1, j), a);
+        let bottom = self.get(i, j1).lerp(self.get(i1, j1), a);
+        top.lerp(bottom, b)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bilinear_reproduces_a_linear_ramp_and_clamps() {
+        let mut g = TexGrid::new(8, 16.0);
+        for j in 0..8 {
+            for i in 0..8 {
+                let (x, y) = g.centre(i, j);
+                g.values_mut()[j * 8 + i] = Vec3A::new(x, y, 1.0);
+            }
+        }
+        let v = g.at(1.3, -2.7);
+        assert!(
+            (v - Vec3A::new(1.3, -2.7, 1.0)).abs().max_element() < 1e-5,
+            "{v}"
+        );
+        assert_eq!(g.at(100.0, 100.0), g.get(7, 7));
+        assert_eq!(g.at(f32::NAN, 0.0), Vec3A::ZERO);
+        assert_eq!(g.n(), 8);
+        assert!((g.cell() - 2.0).abs() < 1e-6);
+    }
+}
