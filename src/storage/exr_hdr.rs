@@ -119,8 +119,19 @@ pub fn decode_exr(name: &str, bytes: &[u8]) -> Result<DecodedExr> {
         })?;
     let layer = image.layer_data;
     let size = layer.size;
-    let metadata = match layer
-        .attributes
+    let metadata = metadata_attribute(&layer.attributes);
+    let too_big = || too_big_error(name, size);
+    Ok(DecodedExr {
+        width: u32::try_from(size.width()).map_err(|_| too_big())?,
+        height: u32::try_from(size.height()).map_err(|_| too_big())?,
+        pixels: layer.channel_data.pixels.pixels,
+        metadata,
+    })
+}
+
+/// The [`ATTRIBUTE`] text attribute of a decoded layer, if present.
+pub(super) fn metadata_attribute(attributes: &LayerAttributes) -> Option<String> {
+    match attributes
         .other
         .get(&Text::from_slice_unchecked(ATTRIBUTE.as_bytes()))
     {
@@ -128,21 +139,19 @@ pub fn decode_exr(name: &str, bytes: &[u8]) -> Result<DecodedExr> {
             Some(String::from_utf8_lossy(text.as_slice()).into_owned())
         }
         _ => None,
-    };
-    let too_big = || StorageError::InvalidFrame {
+    }
+}
+
+/// The error for a decoded image whose size does not fit the frame's u32 dimensions.
+pub(super) fn too_big_error(name: &str, size: exr::math::Vec2<usize>) -> StorageError {
+    StorageError::InvalidFrame {
         name: name.to_string(),
         reason: format!(
             "image size {}x{} does not fit in u32",
             size.width(),
             size.height()
         ),
-    };
-    Ok(DecodedExr {
-        width: u32::try_from(size.width()).map_err(|_| too_big())?,
-        height: u32::try_from(size.height()).map_err(|_| too_big())?,
-        pixels: layer.channel_data.pixels.pixels,
-        metadata,
-    })
+    }
 }
 
 #[cfg(test)]

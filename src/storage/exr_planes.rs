@@ -17,7 +17,7 @@ use exr::meta::header::LayerAttributes;
 use exr::prelude::SmallVec;
 
 use super::error::{Result, StorageError};
-use super::exr_hdr::ATTRIBUTE;
+use super::exr_hdr::{ATTRIBUTE, metadata_attribute, too_big_error};
 
 /// A decoded multi-channel stagehand OpenEXR file.
 #[derive(Debug, Clone, PartialEq)]
@@ -139,24 +139,8 @@ pub fn decode_exr_planes(name: &str, bytes: &[u8]) -> Result<DecodedPlanes> {
         })?;
     let layer = image.layer_data;
     let size = layer.size;
-    let metadata = match layer
-        .attributes
-        .other
-        .get(&Text::from_slice_unchecked(ATTRIBUTE.as_bytes()))
-    {
-        Some(AttributeValue::Text(text)) => {
-            Some(String::from_utf8_lossy(text.as_slice()).into_owned())
-        }
-        _ => None,
-    };
-    let too_big = || StorageError::InvalidFrame {
-        name: name.to_string(),
-        reason: format!(
-            "image size {}x{} does not fit in u32",
-            size.width(),
-            size.height()
-        ),
-    };
+    let metadata = metadata_attribute(&layer.attributes);
+    let too_big = || too_big_error(name, size);
     let channels = layer
         .channel_data
         .list
