@@ -85,7 +85,7 @@ fn run(prepared: Prepared, out: &std::path::Path) -> Measured {
                 operator: Arc::new(AutoConfirm),
                 reserve_bytes: 0,
             };
-            let rig = session::open_rig(&prepared.rig, 1)?;
+            let rig = session::open_rig(&prepared.rig, 1, None)?;
             session::run(prepared, store, rig, wiring).await
         })
         .expect("run");

@@ -5,10 +5,12 @@
 //! devices of a [`rig`] and hands frames to [`storage`], which makes them durable before the
 //! step's journal row commits.
 
+mod camera_backends;
 pub mod cli;
 pub mod dry_run;
 pub mod estimate;
 pub mod executor;
+pub mod hardware;
 pub mod plan;
 pub mod rig;
 pub mod script;

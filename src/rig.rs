@@ -16,9 +16,8 @@ use stagehand_devices::switch_bank::SwitchBankHandle;
 use stagehand_devices::trigger::TriggerHandle;
 use stagehand_devices::{DeviceError, DeviceResult};
 use stagehand_simulator::World;
-use stagehand_simulator::sim_devices::{
-    SimAxis, SimCamera, SimCart, SimLaser, SimSwitchBank, SimTrigger,
-};
+
+use crate::hardware::{Emulation, Emulators, needs_world, open_devices};
 
 /// A rig description together with the text it was read from (stored in every run).
 #[derive(Debug, Clone)]
@@ -76,17 +75,27 @@ pub struct Rig {
     pub trigger: Option<TriggerHandle>,
     pub laser: Option<LaserHandle>,
     pub cart: Option<CartHandle>,
-    /// The simulated world, when the rig is simulated.
+    /// The simulated world, when the rig is simulated or emulated.
     pub world: Option<Arc<World>>,
+    /// The firmware emulators standing in for the ports (emulated rigs only).
+    pub emulators: Arc<Emulators>,
 }
 
 /// Why a rig could not be opened.
 #[derive(Debug, thiserror::Error)]
 pub enum OpenError {
     #[error(
-        "{device}: backend `{backend:?}` has no driver in this build yet; use backend = \"sim\" for this device"
+        "{device}: backend `{backend:?}` has no driver in this build; rebuild with `--features {feature}` (see the README) or use backend = \"sim\""
     )]
-    NoDriver { device: String, backend: Backend },
+    NoDriver {
+        device: String,
+        backend: Backend,
+        feature: &'static str,
+    },
+    #[error("{device}: {message}")]
+    Wiring { device: String, message: String },
+    #[error("{0}")]
+    Device(Box<DeviceError>),
     #[error("simulator: {0}")]
     Simulator(String),
 }
@@ -95,60 +104,27 @@ impl Rig {
     /// Spawns every device's actor. Must run inside a tokio runtime. `seed` drives the
     /// simulated sensor noise; `clock` continues a resumed run's rig time.
     pub fn open(spec: RigSpec, clock: RigClock, seed: u64) -> Result<Rig, OpenError> {
+        Self::open_with(spec, clock, seed, None)
+    }
+
+    /// Like [`Rig::open`]; with `emulation`, the real drivers talk to firmware emulators on
+    /// pseudo-terminals in place of the rig's ports (see [`crate::hardware`]).
+    pub fn open_with(
+        spec: RigSpec,
+        clock: RigClock,
+        seed: u64,
+        emulation: Option<&Emulation>,
+    ) -> Result<Rig, OpenError> {
         let spec = Arc::new(spec);
-        let check = |id: &str, b: Backend| -> Result<(), OpenError> {
-            if b == Backend::Sim {
-                Ok(())
-            } else {
-                Err(OpenError::NoDriver {
-                    device: id.to_string(),
-                    backend: b,
-                })
-            }
+        let world = if needs_world(&spec, emulation.is_some()) {
+            Some(
+                World::new(spec.clone(), clock, seed)
+                    .map_err(|e| OpenError::Simulator(e.to_string()))?,
+            )
+        } else {
+            None
         };
-        for a in &spec.axes {
-            check(&a.id, a.backend)?;
-        }
-        for b in &spec.switch_banks {
-            check(&b.id, b.backend)?;
-        }
-        for c in &spec.cameras {
-            check(&c.id, c.backend)?;
-        }
-        if let Some(t) = &spec.trigger {
-            check(&t.id, t.backend)?;
-        }
-        if let Some(l) = &spec.laser {
-            check(&l.id, l.backend)?;
-        }
-        if let Some(c) = &spec.cart {
-            check(&c.id, c.backend)?;
-        }
-        let world = World::new(spec.clone(), clock, seed)
-            .map_err(|e| OpenError::Simulator(e.to_string()))?;
-        let axes = spec
-            .axes
-            .iter()
-            .map(|a| {
-                (
-                    a.id.clone(),
-                    AxisHandle::spawn(a.clone(), SimAxis::new(a.clone(), world.clone())),
-                )
-            })
-            .collect();
-        let banks = spec
-            .switch_banks
-            .iter()
-            .map(|b| {
-                (
-                    b.id.clone(),
-                    SwitchBankHandle::spawn(
-                        b.clone(),
-                        SimSwitchBank::new(b.clone(), world.clone()),
-                    ),
-                )
-            })
-            .collect();
+        let devices = open_devices(&spec, &world, emulation)?;
         let lamps = spec
             .lamps
             .iter()
@@ -162,39 +138,18 @@ impl Rig {
                 )
             })
             .collect();
-        let cameras = spec
-            .cameras
-            .iter()
-            .map(|c| {
-                (
-                    c.id.clone(),
-                    CameraHandle::spawn(c.clone(), SimCamera::new(c.clone(), world.clone())),
-                )
-            })
-            .collect();
-        let trigger = spec
-            .trigger
-            .as_ref()
-            .map(|t| TriggerHandle::spawn(t.clone(), SimTrigger::new(world.clone())));
-        let laser = spec
-            .laser
-            .as_ref()
-            .map(|l| LaserHandle::spawn(l.clone(), SimLaser::new(world.clone())));
-        let cart = spec
-            .cart
-            .as_ref()
-            .map(|c| CartHandle::spawn(c.clone(), SimCart::new(world.clone())));
         Ok(Rig {
             spec,
             clock,
-            axes,
-            banks,
+            axes: devices.axes,
+            banks: devices.banks,
             lamps,
-            cameras,
-            trigger,
-            laser,
-            cart,
-            world: Some(world),
+            cameras: devices.cameras,
+            trigger: devices.trigger,
+            laser: devices.laser,
+            cart: devices.cart,
+            world,
+            emulators: Arc::new(devices.emulators),
         })
     }
 

@@ -9,6 +9,7 @@ use tokio::sync::broadcast;
 
 use crate::estimate::{Estimate, estimate};
 use crate::executor::{Event, Execution, Operator, RunControl, RunError, Summary, WriterHandle};
+use crate::hardware::Emulation;
 use crate::plan::Plan;
 use crate::rig::{Rig, RigSource};
 use crate::script::{ScriptError, ScriptSource, build_plan};
@@ -167,11 +168,17 @@ fn sim_manifest(spec: &stagehand_devices::rig::RigSpec) -> Result<SimManifest, S
 }
 
 /// Opens the rig's devices for a new run (inside the runtime from [`runtime_for`]).
-pub fn open_rig(rig: &RigSource, seed: u64) -> Result<Rig, SessionError> {
-    Ok(Rig::open(
+/// With `emulation`, the rig's serial devices are firmware emulators on pseudo-terminals.
+pub fn open_rig(
+    rig: &RigSource,
+    seed: u64,
+    emulation: Option<&Emulation>,
+) -> Result<Rig, SessionError> {
+    Ok(Rig::open_with(
         rig.spec.clone(),
         RigClock::starting_at(0.0),
         seed,
+        emulation,
     )?)
 }
 
@@ -217,7 +224,11 @@ pub fn reopen(run_dir: &Path) -> Result<Reopened, SessionError> {
 
 /// Finishes an interrupted run: re-establishes the device state and runs the steps that are
 /// not durable yet. A finished run is left as it is.
-pub async fn resume(reopened: Reopened, wiring: Wiring) -> Result<Summary, SessionError> {
+pub async fn resume(
+    reopened: Reopened,
+    wiring: Wiring,
+    emulation: Option<&Emulation>,
+) -> Result<Summary, SessionError> {
     let Reopened {
         store,
         manifest,
@@ -227,7 +238,12 @@ pub async fn resume(reopened: Reopened, wiring: Wiring) -> Result<Summary, Sessi
     let done = store.done_steps()?;
     let rig_time = store.last_rig_time_s()?;
     store.set_status(RunStatus::Running, None)?;
-    let rig = Rig::open(rig.spec, RigClock::starting_at(rig_time), manifest.seed)?;
+    let rig = Rig::open_with(
+        rig.spec,
+        RigClock::starting_at(rig_time),
+        manifest.seed,
+        emulation,
+    )?;
     execute(
         rig,
         Arc::new(plan),
@@ -266,16 +282,9 @@ async fn execute(
 /// the virtual clock jumps to the next timer whenever every task waits; real rigs run in real
 /// time on a multi-threaded runtime.
 pub fn runtime_for(rig: &RigSource) -> std::io::Result<tokio::runtime::Runtime> {
-    let simulated = rig
-        .spec
-        .axes
-        .iter()
-        .all(|a| a.backend == stagehand_devices::rig::Backend::Sim)
-        && rig
-            .spec
-            .cameras
-            .iter()
-            .all(|c| c.backend == stagehand_devices::rig::Backend::Sim);
+    // Any real driver talks over a port in real time, so only an all-simulated rig may run on
+    // the virtual clock.
+    let simulated = !crate::hardware::needs_real_time(&rig.spec);
     if simulated {
         tokio::runtime::Builder::new_current_thread()
             .enable_all()

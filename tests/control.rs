@@ -152,7 +152,7 @@ fn pause_holds_at_a_step_boundary_and_resume_continues() {
             operator: Arc::new(stagehand::executor::AutoConfirm),
             reserve_bytes: 0,
         };
-        let rig = stagehand::session::open_rig(&prepared.rig, 3).unwrap();
+        let rig = stagehand::session::open_rig(&prepared.rig, 3, None).unwrap();
         stagehand::session::run(prepared, store, rig, wiring)
             .await
             .expect("run");
@@ -202,7 +202,7 @@ fn abort_mid_run_leaves_lamps_and_laser_off() {
         let (tx, mut rx) = tokio::sync::broadcast::channel(10_000);
         let ctl = control.clone();
         // Abort as soon as a capture starts with the laser on (the sweep).
-        let rig = stagehand::session::open_rig(&prepared.rig, 3).unwrap();
+        let rig = stagehand::session::open_rig(&prepared.rig, 3, None).unwrap();
         let probe = rig.clone();
         tokio::spawn(async move {
             while let Ok(e) = rx.recv().await {

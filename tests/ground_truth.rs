@@ -199,7 +199,7 @@ fn run_aborting(out: &std::path::Path, abort_at: Option<usize>) -> std::path::Pa
             operator: Arc::new(AutoConfirm),
             reserve_bytes: 0,
         };
-        let rig = stagehand::session::open_rig(&prepared.rig, 11).unwrap();
+        let rig = stagehand::session::open_rig(&prepared.rig, 11, None).unwrap();
         stagehand::session::run(prepared, store, rig, wiring).await
     });
     assert_eq!(result.is_err(), abort_at.is_some(), "{:?}", result.err());

@@ -46,6 +46,9 @@ enum Cmd {
 #[derive(Clone)]
 pub struct AxisHandle {
     spec: Arc<AxisSpec>,
+    /// Extra time a request may wait behind other axes sharing this axis's controller (a
+    /// GRBL board runs its axes' moves one after another) and for a reconnect's handshake.
+    shared_s: f64,
     tx: mpsc::Sender<Cmd>,
     stop_tx: mpsc::Sender<oneshot::Sender<DeviceResult<f64>>>,
     status: watch::Receiver<AxisStatus>,
@@ -57,6 +60,12 @@ const MARGIN_S: f64 = 2.0;
 impl AxisHandle {
     /// Spawns the actor task that owns `driver` and returns its handle.
     pub fn spawn<D: AxisDriver>(spec: AxisSpec, driver: D) -> Self {
+        Self::spawn_shared(spec, driver, 0.0)
+    }
+
+    /// Like [`AxisHandle::spawn`] for an axis whose controller also serves other axes: every
+    /// request may additionally wait `shared_s` seconds (their moves, a reconnect).
+    pub fn spawn_shared<D: AxisDriver>(spec: AxisSpec, driver: D, shared_s: f64) -> Self {
         let (tx, rx) = mpsc::channel(8);
         let (stop_tx, stop_rx) = mpsc::channel(4);
         let (status_tx, status) = watch::channel(AxisStatus {
@@ -68,6 +77,11 @@ impl AxisHandle {
         tokio::spawn(run_actor(spec.clone(), driver, rx, stop_rx, status_tx));
         Self {
             spec,
+            shared_s: if shared_s.is_finite() {
+                shared_s.max(0.0)
+            } else {
+                0.0
+            },
             tx,
             stop_tx,
             status,
@@ -96,7 +110,7 @@ impl AxisHandle {
     pub async fn home(&self) -> DeviceResult<f64> {
         let s = &self.spec;
         let span = (s.max_deg - s.min_deg).abs();
-        let timeout = span / s.homing_speed_deg_s * 1.5 + s.settle_s + MARGIN_S;
+        let timeout = span / s.homing_speed_deg_s * 1.5 + s.settle_s + MARGIN_S + self.shared_s;
         self.request("home", timeout, Cmd::Home).await
     }
 
@@ -124,19 +138,22 @@ impl AxisHandle {
             s.backlash_deg,
         ) * 1.5
             + s.settle_s
-            + MARGIN_S;
+            + MARGIN_S
+            + self.shared_s;
         self.request("move", timeout, |tx| Cmd::MoveTo(target_deg, tx))
             .await
     }
 
     /// Reads the position from the device.
     pub async fn position(&self) -> DeviceResult<f64> {
-        self.request("position", MARGIN_S, Cmd::Position).await
+        self.request("position", MARGIN_S + self.shared_s, Cmd::Position)
+            .await
     }
 
     /// Stops the axis now, interrupting a move in progress.
     pub async fn stop(&self) -> DeviceResult<f64> {
-        call(&self.spec.id, &self.stop_tx, "stop", MARGIN_S, |tx| tx).await
+        let timeout = MARGIN_S + self.shared_s;
+        call(&self.spec.id, &self.stop_tx, "stop", timeout, |tx| tx).await
     }
 
     async fn request(
@@ -197,7 +214,10 @@ async fn run_actor<D: AxisDriver>(
                                 r.and(Err(DeviceError::Other { device: spec.id.clone(), message: "move interrupted by stop".into() }))
                             }
                         };
-                        let homed = match &r { Err(DeviceError::HardLimit { .. }) => Some(false), _ => None };
+                        let homed = match &r {
+                            Err(DeviceError::HardLimit { .. } | DeviceError::NotHomed { .. } | DeviceError::Alarm { .. }) => Some(false),
+                            _ => None,
+                        };
                         publish(&status, &r, homed, false);
                         let _ = reply.send(r);
                     }

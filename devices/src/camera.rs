@@ -25,11 +25,24 @@ pub trait CameraDriver: Send + 'static {
     fn disarm(&mut self) -> impl Future<Output = DeviceResult<()>> + Send;
     /// Waits for the next frame the camera delivers.
     fn next_frame(&mut self) -> impl Future<Output = DeviceResult<Frame>> + Send;
+    /// Announces that the next frame answers `trigger_id`, before it is awaited. Hardware
+    /// frames carry the camera's own sequence number, not our id: drivers tag frames in
+    /// order and use the sequence to notice lost or extra frames; software-triggered cameras
+    /// expose now. Drivers whose frames carry the id (the simulator's) need do nothing.
+    fn expect(
+        &mut self,
+        trigger_id: u64,
+        exposure_s: f64,
+    ) -> impl Future<Output = DeviceResult<()>> + Send {
+        let _ = (trigger_id, exposure_s);
+        async { Ok(()) }
+    }
 }
 
 enum Cmd {
     Configure(f64, f64, oneshot::Sender<DeviceResult<()>>),
     Arm(bool, oneshot::Sender<DeviceResult<()>>),
+    Expect(u64, f64, oneshot::Sender<DeviceResult<()>>),
     FrameFor(u64, f64, oneshot::Sender<DeviceResult<Frame>>),
 }
 
@@ -96,6 +109,15 @@ impl CameraHandle {
         .await
     }
 
+    /// Announces that the next trigger is `trigger_id`, before it fires (hardware cameras tag
+    /// their next frame with it; software-triggered ones expose now).
+    pub async fn expect(&self, trigger_id: u64, exposure_s: f64) -> DeviceResult<()> {
+        call(&self.spec.id, &self.tx, "expect", MARGIN_S, |tx| {
+            Cmd::Expect(trigger_id, exposure_s, tx)
+        })
+        .await
+    }
+
     /// Collects the frame for `trigger_id`. Waits at most exposure + readout + margin; a
     /// frame of another trigger is an error, never silently accepted.
     pub async fn frame_for(&self, trigger_id: u64, exposure_s: f64) -> DeviceResult<Frame> {
@@ -122,6 +144,9 @@ async fn run_actor<D: CameraDriver>(
             }
             Cmd::Arm(false, reply) => {
                 let _ = reply.send(driver.disarm().await);
+            }
+            Cmd::Expect(id, exposure_s, reply) => {
+                let _ = reply.send(driver.expect(id, exposure_s).await);
             }
             Cmd::FrameFor(id, wait_s, reply) => {
                 let r = match tokio::time::timeout(duration_s(wait_s), driver.next_frame()).await {

@@ -75,6 +75,49 @@ pub enum DeviceError {
     MovingWhileExposing { device: String },
     #[error("{device}: carriage is at its end stop ({end})")]
     EndStop { device: String, end: &'static str },
+    #[error(
+        "{device}: port {port} is gone ({reason}); check the cable, the power and that no other program holds the port — stagehand reconnects when it comes back"
+    )]
+    Disconnected {
+        device: String,
+        port: String,
+        reason: String,
+    },
+    #[error(
+        "{device}: cannot open port {port} ({reason}); check that the path exists (see `stagehand devices`), the udev rules and that you are in the dialout group"
+    )]
+    PortUnavailable {
+        device: String,
+        port: String,
+        reason: String,
+    },
+    #[error(
+        "{device}: unexpected reply on {port}: {message}; check the baud rate, the firmware and the cable"
+    )]
+    Protocol {
+        device: String,
+        port: String,
+        message: String,
+    },
+    #[error("{device}: controller rejected `{command}` with error:{code} ({meaning})")]
+    Rejected {
+        device: String,
+        command: String,
+        code: u32,
+        meaning: String,
+    },
+    #[error(
+        "{device}: controller alarm ALARM:{code} ({meaning}); the position is lost until the axis is homed again"
+    )]
+    Alarm {
+        device: String,
+        code: u32,
+        meaning: String,
+    },
+    #[error(
+        "{device}: {message}; the device lost the state it was set to (a reset or power glitch), so the step is retaken"
+    )]
+    StateLost { device: String, message: String },
     #[error("{device}: {message}")]
     Other { device: String, message: String },
 }
@@ -98,8 +141,67 @@ impl DeviceError {
             | DeviceError::NotArmed { device }
             | DeviceError::MovingWhileExposing { device }
             | DeviceError::EndStop { device, .. }
+            | DeviceError::Disconnected { device, .. }
+            | DeviceError::PortUnavailable { device, .. }
+            | DeviceError::Protocol { device, .. }
+            | DeviceError::Rejected { device, .. }
+            | DeviceError::Alarm { device, .. }
+            | DeviceError::StateLost { device, .. }
             | DeviceError::Other { device, .. } => device,
         }
+    }
+
+    /// The device name inside the error, for renaming.
+    fn device_mut(&mut self) -> &mut String {
+        match self {
+            DeviceError::OutsideSoftLimits { device, .. }
+            | DeviceError::HardLimit { device, .. }
+            | DeviceError::NotHomed { device }
+            | DeviceError::Timeout { device, .. }
+            | DeviceError::Gone { device }
+            | DeviceError::NoSuchChannel { device, .. }
+            | DeviceError::LaserNotArmed { device }
+            | DeviceError::LaserColour { device, .. }
+            | DeviceError::Exposure { device, .. }
+            | DeviceError::Gain { device, .. }
+            | DeviceError::MissingFrame { device, .. }
+            | DeviceError::UnexpectedFrame { device, .. }
+            | DeviceError::NotArmed { device }
+            | DeviceError::MovingWhileExposing { device }
+            | DeviceError::EndStop { device, .. }
+            | DeviceError::Disconnected { device, .. }
+            | DeviceError::PortUnavailable { device, .. }
+            | DeviceError::Protocol { device, .. }
+            | DeviceError::Rejected { device, .. }
+            | DeviceError::Alarm { device, .. }
+            | DeviceError::StateLost { device, .. }
+            | DeviceError::Other { device, .. } => device,
+        }
+    }
+
+    /// The same error naming `name` as its device (e.g. an axis instead of its controller).
+    pub fn with_device(mut self, name: &str) -> Self {
+        *self.device_mut() = name.to_string();
+        self
+    }
+
+    /// True for faults of the link or the controller that a reconnect, a re-home and a retry
+    /// of the step can cure (a lost port, garbage, a lost reply, an alarm, a stalled frame);
+    /// false for requests that are wrong in themselves and would fail again.
+    pub fn is_recoverable(&self) -> bool {
+        matches!(
+            self,
+            DeviceError::Timeout { .. }
+                | DeviceError::Disconnected { .. }
+                | DeviceError::PortUnavailable { .. }
+                | DeviceError::Protocol { .. }
+                | DeviceError::Alarm { .. }
+                | DeviceError::StateLost { .. }
+                | DeviceError::HardLimit { .. }
+                | DeviceError::NotHomed { .. }
+                | DeviceError::MissingFrame { .. }
+                | DeviceError::UnexpectedFrame { .. }
+        )
     }
 }
 

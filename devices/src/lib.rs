@@ -5,17 +5,25 @@
 
 pub mod axis;
 pub mod camera;
+pub mod cameras;
 pub mod cart;
 pub mod clock;
+pub mod discover;
 pub mod error;
 pub mod frame;
+pub mod grbl;
 pub mod ground_truth;
+pub mod hid_relay;
+pub mod ir_cart;
 pub mod laser;
 pub mod lens;
 pub mod motion;
+pub mod relay_serial;
 mod request;
 pub mod rig;
+pub mod serial_link;
 pub mod switch_bank;
+pub mod switched;
 pub mod trigger;
 
 pub use error::{DeviceError, DeviceResult};

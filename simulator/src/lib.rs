@@ -1,6 +1,7 @@
 //! The simulated light stage: a `World` holding the rig's state on the virtual clock,
 //! simulated devices that change it, and a renderer that turns it into camera frames.
 
+pub mod emulators;
 pub mod materials;
 pub mod render;
 pub mod scene_file;

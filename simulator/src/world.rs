@@ -17,6 +17,10 @@ use crate::world_state::{LaserBeam, WorldSnapshot};
 pub struct Pulse {
     pub trigger_id: u64,
     pub rig_time_s: f64,
+    /// A pulse on a hardware line (an emulated board's GPIO): it carries no id of its own, so
+    /// cameras tag its frame with the id the host announced (`CameraDriver::expect`), as
+    /// hardware-triggered cameras do.
+    pub hardware: bool,
 }
 
 /// Where an axis is: resting, or inside a planned move that started at `start_s`.
@@ -59,6 +63,10 @@ struct State {
     fixture: String,
     exposing_until_s: f64,
     violations: Vec<String>,
+    /// Frames each camera must still drop (fault injection, see [`World::stall_camera`]).
+    stalled_frames: BTreeMap<String, u32>,
+    /// Id of the last pulse sent, so an unannounced hardware pulse still gets a fresh id.
+    last_pulse_id: u64,
 }
 
 /// The simulated rig shared by every simulated device.
@@ -249,11 +257,52 @@ impl World {
     }
 
     pub(crate) fn pulse(&self, trigger_id: u64, t: f64) {
+        self.send_pulse(trigger_id, t, false);
+    }
+
+    fn send_pulse(&self, trigger_id: u64, t: f64, hardware: bool) {
+        self.lock().last_pulse_id = trigger_id;
         // No camera armed is not an error for the line itself; the executor accounts frames.
         let _ = self.pulses.send(Pulse {
             trigger_id,
             rig_time_s: t,
+            hardware,
         });
+    }
+
+    /// A pulse on the hardware trigger line at rig time `t` (a rising edge seen by an emulated
+    /// board). The line carries no id: the pulse gets the id after the last one, and cameras
+    /// tag its frame with the id the host announced to them.
+    pub fn pulse_hardware(&self, t: f64) {
+        let id = self.lock().last_pulse_id.wrapping_add(1);
+        self.send_pulse(id, t, true);
+    }
+
+    /// Fault injection: camera `camera` sees its next `frames` trigger pulses but delivers no
+    /// frame for them (a stalled camera), so the host's frame accounting must notice.
+    pub fn stall_camera(&self, camera: &str, frames: u32) {
+        *self
+            .lock()
+            .stalled_frames
+            .entry(camera.to_string())
+            .or_insert(0) += frames;
+    }
+
+    /// True (and one fewer frame left to drop) if `camera` must drop its current frame.
+    pub(crate) fn take_stalled_frame(&self, camera: &str) -> bool {
+        let mut s = self.lock();
+        match s.stalled_frames.get_mut(camera) {
+            Some(n) if *n > 0 => {
+                *n -= 1;
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// Wavelength of the laser module currently fitted (emulated boards switch it on and off).
+    pub(crate) fn laser_colour_nm(&self) -> u32 {
+        self.lock().laser_colour_nm
     }
 
     pub(crate) fn subscribe(&self) -> broadcast::Receiver<Pulse> {

@@ -1,5 +1,6 @@
 //! Command-line interface. Exit codes: 0 done, 1 failed or aborted, 2 bad input.
 
+mod devices;
 mod operator;
 mod progress;
 mod sim;
@@ -12,6 +13,7 @@ use tokio::sync::broadcast;
 
 use crate::dry_run::{render_report_with_renderer, renderer_line};
 use crate::executor::{AutoConfirm, Operator, RunControl, Summary};
+use crate::hardware::Emulation;
 use crate::rig::RigSource;
 use crate::script::{ScriptSource, parse_set};
 use crate::session::{self, DEFAULT_RESERVE_BYTES, SessionError, Wiring};
@@ -48,6 +50,10 @@ enum Command {
         /// Free space to keep on the dataset's disk, in MiB.
         #[arg(long, default_value_t = DEFAULT_RESERVE_BYTES >> 20)]
         reserve_mib: u64,
+        /// Run the real serial drivers against firmware emulators on pseudo-terminals instead
+        /// of the rig's ports, and render the cameras from the simulated world.
+        #[arg(long)]
+        emulate: bool,
     },
     /// Dry run: build and check the plan, estimate time, frames and bytes. Nothing moves.
     Plan {
@@ -65,6 +71,8 @@ enum Command {
         #[command(subcommand)]
         command: sim::SimCommand,
     },
+    /// List serial ports, HID relays and cameras with rig-file snippets.
+    Devices(devices::DevicesArgs),
     /// Finish an interrupted run (after a crash, kill, abort or full disk).
     Resume {
         run_dir: PathBuf,
@@ -72,6 +80,9 @@ enum Command {
         yes: bool,
         #[arg(long, default_value_t = DEFAULT_RESERVE_BYTES >> 20)]
         reserve_mib: u64,
+        /// Resume against firmware emulators (a run started with `--emulate`).
+        #[arg(long)]
+        emulate: bool,
     },
 }
 
@@ -111,6 +122,9 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
     let started = std::time::Instant::now();
     match command {
         Command::Sim { command } => Ok(sim::run(command)),
+        Command::Devices(args) => devices::run(args)
+            .map(|()| 0)
+            .map_err(|e| SessionError::Io(e.to_string())),
         Command::Plan {
             script,
             rig,
@@ -154,6 +168,7 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
             set,
             yes,
             reserve_mib,
+            emulate,
         } => {
             let rig = RigSource::load(rig.as_deref())?;
             let script = ScriptSource::from_file(&script)?;
@@ -169,9 +184,10 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
             let store = session::create_run(&prepared, &out, seed)?;
             let dir = store.dir().to_path_buf();
             eprintln!("run directory: {}", dir.display());
+            let emulation = emulation(emulate)?;
             let result = runtime.block_on(async move {
                 let (wiring, ui) = wire(yes, reserve_mib);
-                let r = match session::open_rig(&prepared.rig, seed) {
+                let r = match session::open_rig(&prepared.rig, seed, emulation.as_ref()) {
                     Ok(rig) => session::run(prepared, store, rig, wiring).await,
                     Err(e) => Err(e),
                 };
@@ -184,20 +200,41 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
             run_dir,
             yes,
             reserve_mib,
+            emulate,
         } => {
             let reopened = session::reopen(&run_dir)?;
             let runtime =
                 session::runtime_for(&reopened.rig).map_err(|e| SessionError::Io(e.to_string()))?;
             eprintln!("resuming {}", run_dir.display());
+            let emulation = emulation(emulate)?;
             let result = runtime.block_on(async move {
                 let (wiring, ui) = wire(yes, reserve_mib);
-                let r = session::resume(reopened, wiring).await;
+                let r = session::resume(reopened, wiring, emulation.as_ref()).await;
                 ui.finish().await;
                 r
             });
             report(&run_dir, started, result)
         }
     }
+}
+
+/// The emulators' port links go in a fresh directory under the system's temp dir.
+fn emulation(emulate: bool) -> Result<Option<Emulation>, SessionError> {
+    if !emulate {
+        return Ok(None);
+    }
+    let dir = std::env::temp_dir().join(format!("stagehand-emulators-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).map_err(|e| {
+        SessionError::Io(format!(
+            "cannot create the emulators' directory {}: {e}",
+            dir.display()
+        ))
+    })?;
+    eprintln!(
+        "emulating the rig's serial devices; port links in {}",
+        dir.display()
+    );
+    Ok(Some(Emulation::new(&dir)))
 }
 
 /// Progress display, Ctrl-C handling and the operator for one run.

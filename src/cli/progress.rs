@@ -48,6 +48,17 @@ impl Progress {
                         ));
                     }
                     Ok(Event::Warning { message }) => b.println(format!("warning: {message}")),
+                    Ok(Event::DeviceFault {
+                        step,
+                        message,
+                        attempt,
+                        ..
+                    }) => b.println(format!(
+                        "paused at step {step} (fault {attempt}): {message}; reconnecting and re-homing"
+                    )),
+                    Ok(Event::Recovered { step, device }) => {
+                        b.println(format!("{device} recovered; running step {step} again"))
+                    }
                     Ok(Event::RunFinished { .. }) => {
                         b.finish();
                         break;

@@ -80,11 +80,14 @@ pub(super) async fn capture(
     live.last_capture_s = Some(rig.clock.now_s());
 
     let mut out = StepFrames::default();
+    // A frame is only worth keeping if the lamps were as planned throughout its exposure.
+    verify_lamps(ex, live).await?;
     try_all(handles.iter().map(|c| c.set_armed(true))).await?;
     let result = async {
         for (e, &exposure) in exposures_s.iter().enumerate() {
             try_all(handles.iter().map(|c| c.configure(exposure, *gain))).await?;
             let id = trigger_id(step.index, e);
+            try_all(handles.iter().map(|c| c.expect(id, exposure))).await?;
             trigger.fire(id).await?;
             let frames = try_all(handles.iter().map(|c| c.frame_for(id, exposure))).await?;
             for frame in frames {
@@ -99,6 +102,7 @@ pub(super) async fn capture(
     let disarmed = try_all(handles.iter().map(|c| c.set_armed(false))).await;
     result?;
     disarmed?;
+    verify_lamps(ex, live).await?;
 
     if *hdr && exposures_s.len() > 1 {
         for cam in cameras {
@@ -123,6 +127,45 @@ pub(super) async fn capture(
         }
     }
     Ok(out)
+}
+
+/// Reads every switch bank back and checks that each lamp is on exactly when the plan has it
+/// on. A relay board that reset (power glitch, watchdog) would otherwise darken frames
+/// silently.
+async fn verify_lamps(ex: &Execution, live: &Live) -> Result<(), DeviceError> {
+    for (bank_id, bank) in &ex.rig.banks {
+        let lamps: Vec<_> = ex
+            .rig
+            .spec
+            .lamps
+            .iter()
+            .filter(|l| &l.bank == bank_id)
+            .collect();
+        if lamps.is_empty() {
+            continue;
+        }
+        let states = bank.read().await?;
+        for lamp in lamps {
+            let want = live.state.lamps_on.contains(&lamp.id);
+            let is = states
+                .get(lamp.channel as usize - 1)
+                .copied()
+                .unwrap_or(false);
+            if is != want {
+                return Err(DeviceError::StateLost {
+                    device: bank_id.clone(),
+                    message: format!(
+                        "lamp `{}` (channel {}) is {} but should be {}",
+                        lamp.id,
+                        lamp.channel,
+                        if is { "on" } else { "off" },
+                        if want { "on" } else { "off" }
+                    ),
+                });
+            }
+        }
+    }
+    Ok(())
 }
 
 fn black_level(ex: &Execution, camera: &str) -> f64 {

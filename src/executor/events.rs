@@ -43,6 +43,19 @@ pub enum Event {
     Warning {
         message: String,
     },
+    /// A device failed during a step; the run pauses while the rig is re-established and the
+    /// step is then run again.
+    DeviceFault {
+        step: usize,
+        device: String,
+        message: String,
+        attempt: u32,
+    },
+    /// The rig is back in the state before the step (reconnected, re-homed); the step runs again.
+    Recovered {
+        step: usize,
+        device: String,
+    },
     RunFinished {
         status: String,
         message: Option<String>,

@@ -39,7 +39,7 @@ pub enum RunError {
         step: usize,
         kind: &'static str,
         at: SourcePos,
-        source: DeviceError,
+        source: Box<DeviceError>,
     },
     #[error(
         "writing step {step} failed: {message}; the run is resumable with `stagehand resume` once fixed"
@@ -188,7 +188,7 @@ impl Execution {
                 step: establish_at.0,
                 kind: "establish",
                 at: establish_at.1,
-                source,
+                source: Box::new(source),
             })?;
         let rig_t0 = self.rig.clock.now_s();
         let est_t0 = if first == 0 {
@@ -211,17 +211,14 @@ impl Execution {
             });
             let rig_start = self.rig.clock.now_s();
             let wall_start = wall_now();
-            let outcome = tokio::select! {
-                r = self.run_step(step, &mut live) => r,
-                () = self.control.aborted() => return Err(RunError::Aborted { step: step.index }),
-            };
+            let outcome = self.run_step_recovering(step, &mut live).await;
             let captures = outcome.map_err(|e| match e {
                 StepFailure::Device(source) => RunError::Device {
                     script: self.script_name.clone(),
                     step: step.index,
                     kind: step.action.kind(),
                     at: step.at,
-                    source,
+                    source: Box::new(source),
                 },
                 StepFailure::Aborted => RunError::Aborted { step: step.index },
             })?;
@@ -255,6 +252,73 @@ impl Execution {
             });
         }
         Ok(())
+    }
+
+    /// Runs one step; when a device fails in a way a reconnect can cure (a lost port, garbage,
+    /// a lost reply, an alarm, a stalled camera), pauses the run with a `DeviceFault` event,
+    /// brings the rig back to the state before the step (reconnecting, re-homing every axis so
+    /// no frame is taken at an unverified position) and runs the step again. The frames of a
+    /// failed attempt are never written and trigger ids depend only on the step, so a retried
+    /// step records exactly the frames an undisturbed one would have.
+    async fn run_step_recovering(
+        &self,
+        step: &crate::plan::Step,
+        live: &mut Live,
+    ) -> Result<capture::StepFrames, StepFailure> {
+        let before = live.state.clone();
+        let mut faults = 0;
+        loop {
+            let outcome = tokio::select! {
+                r = self.run_step(step, live) => r,
+                () = self.control.aborted() => return Err(StepFailure::Aborted),
+            };
+            let error = match outcome {
+                Err(StepFailure::Device(e)) if e.is_recoverable() && faults < MAX_STEP_FAULTS => e,
+                other => return other,
+            };
+            faults += 1;
+            tracing::warn!("step {}: {error}; recovering", step.index);
+            self.emit(Event::DeviceFault {
+                step: step.index,
+                device: error.device().to_string(),
+                message: error.to_string(),
+                attempt: faults,
+            });
+            tokio::select! {
+                r = self.recover(live, &before, &error) => r?,
+                () = self.control.aborted() => return Err(StepFailure::Aborted),
+            }
+            self.emit(Event::Recovered {
+                step: step.index,
+                device: error.device().to_string(),
+            });
+        }
+    }
+
+    /// Re-establishes `state` after `fault`, retrying with a growing pause while the device is
+    /// still away (a port re-enumerating takes a moment). Gives up with the last error.
+    async fn recover(
+        &self,
+        live: &mut Live,
+        state: &RigState,
+        fault: &DeviceError,
+    ) -> Result<(), StepFailure> {
+        let mut last = fault.clone();
+        for attempt in 0..RECOVERY_ATTEMPTS {
+            self.rig
+                .clock
+                .sleep_s(RECOVERY_PAUSE_S * f64::from(1u32 << attempt))
+                .await;
+            match establish::establish(&self.rig, live, state).await {
+                Ok(()) => return Ok(()),
+                Err(e) if e.is_recoverable() => {
+                    tracing::warn!("recovery attempt {}: {e}", attempt + 1);
+                    last = e;
+                }
+                Err(e) => return Err(StepFailure::Device(e)),
+            }
+        }
+        Err(StepFailure::Device(last))
     }
 
     async fn run_step(
@@ -346,6 +410,12 @@ impl Execution {
         Ok(out)
     }
 }
+
+/// Device faults a single step may recover from before the run stops (resumable).
+const MAX_STEP_FAULTS: u32 = 3;
+/// Attempts to re-establish the rig after a fault, and the first pause (doubling each time).
+const RECOVERY_ATTEMPTS: u32 = 5;
+const RECOVERY_PAUSE_S: f64 = 0.5;
 
 /// A step that did not complete.
 pub(crate) enum StepFailure {

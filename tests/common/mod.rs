@@ -9,6 +9,7 @@ use std::pin::Pin;
 use std::sync::{Arc, Mutex};
 
 use stagehand::executor::{Answer, AutoConfirm, Event, Operator, RunControl, Summary};
+use stagehand::hardware::Emulation;
 use stagehand::rig::RigSource;
 use stagehand::script::ScriptSource;
 use stagehand::session::{self, DEFAULT_RESERVE_BYTES, Prepared, SessionError, Wiring};
@@ -111,6 +112,19 @@ pub fn run_prepared(
     operator: Arc<dyn Operator>,
     control: RunControl,
 ) -> Outcome {
+    run_prepared_with(prepared, out, seed, operator, control, None)
+}
+
+/// Like [`run_prepared`], optionally with the serial devices emulated (see
+/// `stagehand::hardware::Emulation`).
+pub fn run_prepared_with(
+    prepared: Prepared,
+    out: &Path,
+    seed: u64,
+    operator: Arc<dyn Operator>,
+    control: RunControl,
+    emulation: Option<Emulation>,
+) -> Outcome {
     let runtime = session::runtime_for(&prepared.rig).expect("runtime");
     let store = session::create_run(&prepared, out, seed).expect("create run");
     let dir = store.dir().to_path_buf();
@@ -133,7 +147,7 @@ pub fn run_prepared(
             operator,
             reserve_bytes: DEFAULT_RESERVE_BYTES,
         };
-        let rig = session::open_rig(&prepared.rig, seed).expect("open rig");
+        let rig = session::open_rig(&prepared.rig, seed, emulation.as_ref()).expect("open rig");
         let r = session::run(prepared, store, rig, wiring).await;
         (r, collector.await.unwrap_or_default())
     });
@@ -174,7 +188,7 @@ pub fn resume(dir: &Path, operator: Arc<dyn Operator>) -> Result<Summary, Sessio
             operator,
             reserve_bytes: DEFAULT_RESERVE_BYTES,
         };
-        session::resume(reopened, wiring).await
+        session::resume(reopened, wiring, None).await
     })
 }
 

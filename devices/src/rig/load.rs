@@ -6,7 +6,7 @@ use std::path::Path;
 use thiserror::Error;
 use toml::de::{DeTable, DeValue};
 
-use super::spec::{Backend, CameraSpec, FIXTURES, LampKind, RigSpec};
+use super::spec::{CameraSpec, FIXTURES, LampKind, RigSpec};
 use crate::lens::Intrinsics;
 
 /// A rig file that could not be used.
@@ -386,16 +386,7 @@ fn check(spec: &RigSpec) -> Result<(), Problem> {
             ));
         }
     }
-    let uses_hardware = spec
-        .axes
-        .iter()
-        .map(|a| a.backend)
-        .chain(spec.cameras.iter().map(|c| c.backend))
-        .any(|b| b != Backend::Sim);
-    if uses_hardware {
-        tracing::debug!("rig `{}` names hardware backends", spec.rig.name);
-    }
-    Ok(())
+    super::wiring::check_wiring(spec)
 }
 
 /// Distortion coefficients and principal point of a camera: finite, the principal point

@@ -2,6 +2,7 @@
 
 mod load;
 mod spec;
+mod wiring;
 
 pub use load::{RigError, Seg, line_col, load_rig_file, locate, names_sample, parse_rig};
 pub use spec::*;

@@ -48,7 +48,16 @@ pub enum Backend {
     V4l,
     Aravis,
     Gphoto2,
+    /// A laser or trigger wired to a channel of one of this rig's switch banks.
+    Switch,
+    /// Each camera triggers itself in software (no trigger line).
+    Software,
 }
+
+/// Default baud rates of the serial protocols (USB CDC ports ignore the rate).
+pub const GRBL_BAUD: u32 = 115_200;
+pub const RELAY_SERIAL_BAUD: u32 = 19_200;
+pub const IR_BRIDGE_BAUD: u32 = 9_600;
 
 /// What an axis moves, so the simulator knows how it changes the optical geometry.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -86,9 +95,16 @@ pub struct AxisSpec {
     /// Speed of the homing move toward the home switch at 0°.
     #[serde(default = "default_homing_speed")]
     pub homing_speed_deg_s: f64,
-    /// Microsteps per degree; positions are quantised to it.
+    /// Microsteps per degree; positions are quantised to it. A GRBL controller must be set
+    /// up with `$10x` equal to this (its "mm" are our degrees).
     #[serde(default = "default_steps_per_deg")]
     pub steps_per_deg: f64,
+    /// The controller's letter for this axis (`X`, `Y` or `Z`; GRBL axes only).
+    #[serde(default)]
+    pub controller_axis: Option<String>,
+    /// Serial baud rate (default 115200 for GRBL).
+    #[serde(default)]
+    pub baud: Option<u32>,
 }
 
 fn default_homing_speed() -> f64 {
@@ -118,6 +134,17 @@ pub struct SwitchBankSpec {
     pub port: Option<String>,
     /// Number of channels, numbered from 1.
     pub channels: u32,
+    /// Serial baud rate (default 19200 for relay-serial).
+    #[serde(default)]
+    pub baud: Option<u32>,
+    /// Watchdog lease: the driver renews it at a third of this period, and outputs switch off
+    /// when it lapses (the emulator does it; real boards where they support it).
+    #[serde(default = "default_watchdog")]
+    pub watchdog_s: f64,
+}
+
+fn default_watchdog() -> f64 {
+    3.0
 }
 
 /// What kind of light a switched channel powers.
@@ -236,6 +263,19 @@ pub struct TriggerSpec {
     pub backend: Backend,
     #[serde(default)]
     pub port: Option<String>,
+    /// Switch bank (a relay-serial board) whose GPIO line fires the cameras (backend `switch`).
+    #[serde(default)]
+    pub bank: Option<String>,
+    /// GPIO line number on that board (from 0, as the board numbers them).
+    #[serde(default)]
+    pub line: Option<u32>,
+    /// Length of the trigger pulse.
+    #[serde(default = "default_pulse")]
+    pub pulse_s: f64,
+}
+
+fn default_pulse() -> f64 {
+    0.001
 }
 
 /// The line laser on the light arc; its tilt is an axis.
@@ -259,6 +299,11 @@ pub struct LaserSpec {
     /// 1/e² half-thickness of the laser sheet at the sample.
     #[serde(default = "default_sheet")]
     pub sheet_half_width_mm: f64,
+    /// Switch bank and channel that power the laser (backend `switch`).
+    #[serde(default)]
+    pub bank: Option<String>,
+    #[serde(default)]
+    pub channel: Option<u32>,
 }
 
 fn default_sheet() -> f64 {
@@ -276,6 +321,28 @@ pub struct CartSpec {
     pub speed_mm_s: f64,
     /// Travel between the end stops; the carriage starts at 0.
     pub travel_mm: f64,
+    /// Serial baud rate of the IR bridge (default 9600).
+    #[serde(default)]
+    pub baud: Option<u32>,
+    /// Power Functions channel (1–4) the cart's IR receiver is set to.
+    #[serde(default = "default_pf_channel")]
+    pub ir_channel: u8,
+    /// Power Functions output (`A` or `B`) the motor is plugged into.
+    #[serde(default = "default_pf_output")]
+    pub ir_output: String,
+    /// PWM step (1–7) the motor runs at; `speed_mm_s` is the cart's speed at this step.
+    #[serde(default = "default_pf_speed")]
+    pub ir_speed_step: u8,
+}
+
+fn default_pf_channel() -> u8 {
+    1
+}
+fn default_pf_output() -> String {
+    "A".into()
+}
+fn default_pf_speed() -> u8 {
+    7
 }
 
 /// Fixtures that can lie on the stage: procedural samples and calibration targets. The rig's

@@ -164,6 +164,8 @@ mod tests {
             distance_mm: 700.0,
             power_mw: 10.0,
             sheet_half_width_mm: 0.4,
+            bank: None,
+            channel: None,
         }
     }
 

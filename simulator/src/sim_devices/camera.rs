@@ -21,6 +21,8 @@ pub struct SimCamera {
     exposure_s: f64,
     gain: f64,
     armed: Option<broadcast::Receiver<Pulse>>,
+    /// The trigger id the host announced for the next frame (tags hardware pulses).
+    expected: Option<u64>,
     /// The last ground truth rendered and the scene it shows (rig time zeroed): the exposures
     /// of a bracket see the same scene, so they share one.
     ground_truth: Option<(WorldSnapshot, Arc<GroundTruthData>)>,
@@ -34,6 +36,7 @@ impl SimCamera {
             exposure_s: 0.01,
             gain: 1.0,
             armed: None,
+            expected: None,
             ground_truth: None,
         }
     }
@@ -104,23 +107,39 @@ impl CameraDriver for SimCamera {
         Ok(())
     }
 
+    async fn expect(&mut self, trigger_id: u64, _exposure_s: f64) -> DeviceResult<()> {
+        self.expected = Some(trigger_id);
+        Ok(())
+    }
+
     async fn next_frame(&mut self) -> DeviceResult<Frame> {
         let id = self.spec.id.clone();
         let rx = self
             .armed
             .as_mut()
             .ok_or_else(|| DeviceError::NotArmed { device: id.clone() })?;
-        let pulse = match rx.recv().await {
-            Ok(p) => p,
-            Err(broadcast::error::RecvError::Lagged(n)) => {
-                return Err(DeviceError::Other {
-                    device: id,
-                    message: format!("missed {n} trigger pulses; the camera was too slow"),
-                });
+        let pulse = loop {
+            let pulse = match rx.recv().await {
+                Ok(p) => p,
+                Err(broadcast::error::RecvError::Lagged(n)) => {
+                    return Err(DeviceError::Other {
+                        device: id,
+                        message: format!("missed {n} trigger pulses; the camera was too slow"),
+                    });
+                }
+                Err(broadcast::error::RecvError::Closed) => {
+                    return Err(DeviceError::Gone { device: id });
+                }
+            };
+            // A stalled camera (fault injection) swallows the pulse and delivers nothing.
+            if !self.world.take_stalled_frame(&id) {
+                break pulse;
             }
-            Err(broadcast::error::RecvError::Closed) => {
-                return Err(DeviceError::Gone { device: id });
-            }
+        };
+        // A hardware pulse carries no id: the frame answers the trigger the host announced.
+        let trigger_id = match (pulse.hardware, self.expected.take()) {
+            (true, Some(expected)) => expected,
+            _ => pulse.trigger_id,
         };
         let clock = self.world.clock();
         let start = pulse.rig_time_s;
@@ -136,7 +155,7 @@ impl CameraDriver for SimCamera {
                 &id,
                 self.exposure_s,
                 self.gain,
-                self.noise_seed(pulse.trigger_id),
+                self.noise_seed(trigger_id),
             )
             .map_err(|e| DeviceError::Other {
                 device: id.clone(),
@@ -148,7 +167,7 @@ impl CameraDriver for SimCamera {
             .await;
         Ok(Frame {
             camera: id,
-            trigger_id: pulse.trigger_id,
+            trigger_id,
             width: self.spec.width,
             height: self.spec.height,
             bit_depth: self.spec.bit_depth,

@@ -1,0 +1,582 @@
+//! Real camera backends (V4L2, GenICam through aravis, DSLRs through gphoto2), each behind its
+//! Cargo feature, plus what they share and what is tested without hardware: exact trigger
+//! accounting ([`accounting`]), rig-file parsing and unit conversion ([`config`]) and pixel
+//! format conversion ([`pixels`]).
+//!
+//! Every backend runs its blocking library on a dedicated std thread fed by a channel
+//! (`worker`); the async `CameraDriver` side only sends commands and receives frames.
+
+pub mod accounting;
+pub mod config;
+
+#[cfg(feature = "cam-aravis")]
+pub mod aravis;
+#[cfg(feature = "cam-gphoto2")]
+pub mod gphoto2;
+#[cfg(feature = "cam-v4l")]
+pub mod v4l;
+
+/// Conversion of the simple uncompressed pixel formats to [`crate::Frame`]'s interleaved RGB
+/// u16 samples. Compressed (MJPEG) and mosaic (Bayer) formats are not converted here.
+pub mod pixels {
+    /// Checks that `data` holds `height` rows of `stride` bytes with `row_bytes` used each.
+    fn check(
+        width: u32,
+        height: u32,
+        stride: usize,
+        row_bytes: usize,
+        data: &[u8],
+    ) -> Result<(), String> {
+        if width == 0 || height == 0 {
+            return Err(format!("empty image {width}×{height}"));
+        }
+        if stride < row_bytes {
+            return Err(format!(
+                "row stride {stride} is less than a row ({row_bytes} bytes)"
+            ));
+        }
+        let need = stride * (height as usize - 1) + row_bytes;
+        if data.len() < need {
+            return Err(format!(
+                "frame of {} bytes is too short for {width}×{height} ({need} bytes needed)",
+                data.len()
+            ));
+        }
+        Ok(())
+    }
+
+    /// Rows of `data`, each cut to `row_bytes`.
+    fn rows(
+        data: &[u8],
+        height: u32,
+        stride: usize,
+        row_bytes: usize,
+    ) -> impl Iterator<Item = &[u8]> {
+        (0..height as usize).map(move |y| &data[y * stride..y * stride + row_bytes])
+    }
+
+    /// 8-bit grey (V4L2 `GREY`, GenICam `Mono8`) to RGB with equal channels (bit depth 8).
+    pub fn mono8(width: u32, height: u32, stride: usize, data: &[u8]) -> Result<Vec<u16>, String> {
+        let row = width as usize;
+        check(width, height, stride, row, data)?;
+        Ok(rows(data, height, stride, row)
+            .flat_map(|r| r.iter().flat_map(|&v| [u16::from(v); 3]))
+            .collect())
+    }
+
+    /// 16-bit little-endian grey (V4L2 `Y16 `, GenICam `Mono16`, also Mono10/12 unpacked) to
+    /// RGB with equal channels.
+    pub fn mono16le(
+        width: u32,
+        height: u32,
+        stride: usize,
+        data: &[u8],
+    ) -> Result<Vec<u16>, String> {
+        let row = width as usize * 2;
+        check(width, height, stride, row, data)?;
+        Ok(rows(data, height, stride, row)
+            .flat_map(|r| {
+                r.chunks_exact(2)
+                    .flat_map(|p| [u16::from_le_bytes([p[0], p[1]]); 3])
+            })
+            .collect())
+    }
+
+    /// Packed 8-bit RGB (V4L2 `RGB3`, GenICam `RGB8`) to RGB u16 (bit depth 8).
+    pub fn rgb24(width: u32, height: u32, stride: usize, data: &[u8]) -> Result<Vec<u16>, String> {
+        let row = width as usize * 3;
+        check(width, height, stride, row, data)?;
+        Ok(rows(data, height, stride, row)
+            .flat_map(|r| r.iter().map(|&v| u16::from(v)))
+            .collect())
+    }
+
+    /// Packed 8-bit BGR (V4L2 `BGR3`, GenICam `BGR8`) to RGB u16 (bit depth 8).
+    pub fn bgr24(width: u32, height: u32, stride: usize, data: &[u8]) -> Result<Vec<u16>, String> {
+        let row = width as usize * 3;
+        check(width, height, stride, row, data)?;
+        Ok(rows(data, height, stride, row)
+            .flat_map(|r| {
+                r.chunks_exact(3)
+                    .flat_map(|p| [p[2], p[1], p[0]].map(u16::from))
+            })
+            .collect())
+    }
+
+    /// YUYV 4:2:2 (V4L2 `YUYV`, most UVC webcams) to RGB, BT.601 limited range (bit depth 8).
+    pub fn yuyv(width: u32, height: u32, stride: usize, data: &[u8]) -> Result<Vec<u16>, String> {
+        if !width.is_multiple_of(2) {
+            return Err(format!("YUYV needs an even width, got {width}"));
+        }
+        let row = width as usize * 2;
+        check(width, height, stride, row, data)?;
+        let mut out = Vec::with_capacity(width as usize * height as usize * 3);
+        for r in rows(data, height, stride, row) {
+            for q in r.chunks_exact(4) {
+                let (y0, u, y1, v) = (q[0], q[1], q[2], q[3]);
+                out.extend(yuv_to_rgb(y0, u, v));
+                out.extend(yuv_to_rgb(y1, u, v));
+            }
+        }
+        Ok(out)
+    }
+
+    /// One BT.601 limited-range YCbCr sample to 8-bit RGB.
+    pub fn yuv_to_rgb(y: u8, u: u8, v: u8) -> [u16; 3] {
+        let c = (f32::from(y) - 16.0) * 1.164_383;
+        let d = f32::from(u) - 128.0;
+        let e = f32::from(v) - 128.0;
+        let to = |x: f32| x.round().clamp(0.0, 255.0) as u16;
+        [
+            to(c + 1.596_027 * e),
+            to(c - 0.391_762 * d - 0.812_968 * e),
+            to(c + 2.017_232 * d),
+        ]
+    }
+
+    #[cfg(test)]
+    mod tests {
+        use super::*;
+
+        #[test]
+        fn mono_and_rgb() {
+            assert_eq!(mono8(2, 1, 2, &[0, 255]), Ok(vec![0, 0, 0, 255, 255, 255]));
+            // Stride padding is skipped.
+            assert_eq!(mono8(1, 2, 4, &[7, 9, 9, 9, 8]), Ok(vec![7, 7, 7, 8, 8, 8]));
+            assert_eq!(mono16le(1, 1, 2, &[0x34, 0x12]), Ok(vec![0x1234; 3]));
+            assert_eq!(rgb24(1, 1, 3, &[1, 2, 3]), Ok(vec![1, 2, 3]));
+            assert_eq!(bgr24(1, 1, 3, &[1, 2, 3]), Ok(vec![3, 2, 1]));
+        }
+
+        #[test]
+        fn yuyv_primaries() {
+            // Black, white and mid grey.
+            assert_eq!(yuv_to_rgb(16, 128, 128), [0, 0, 0]);
+            assert_eq!(yuv_to_rgb(235, 128, 128), [255, 255, 255]);
+            assert_eq!(yuv_to_rgb(126, 128, 128), [128, 128, 128]);
+            // BT.601 red: Y=81 Cb=90 Cr=240.
+            let [r, g, b] = yuv_to_rgb(81, 90, 240);
+            assert!(r >= 250 && g <= 3 && b <= 3, "{r} {g} {b}");
+            let px = yuyv(2, 1, 4, &[16, 128, 235, 128]).expect("valid");
+            assert_eq!(px, vec![0, 0, 0, 255, 255, 255]);
+        }
+
+        #[test]
+        fn short_or_odd_buffers_are_errors() {
+            assert!(mono8(4, 4, 4, &[0; 15]).unwrap_err().contains("too short"));
+            assert!(rgb24(2, 1, 5, &[0; 6]).unwrap_err().contains("stride"));
+            assert!(yuyv(3, 1, 6, &[0; 6]).unwrap_err().contains("even width"));
+            assert!(mono16le(0, 1, 0, &[]).is_err());
+        }
+    }
+}
+
+/// The std thread that owns a blocking camera library, and the async link to it.
+#[cfg(any(feature = "cam-v4l", feature = "cam-aravis", feature = "cam-gphoto2"))]
+mod worker {
+    use std::sync::mpsc as std_mpsc;
+    use std::time::{Duration, Instant};
+
+    use tokio::sync::{mpsc, oneshot};
+
+    use super::accounting::{FrameVerdict, TriggerAccounting, frame_timeout_s};
+    use super::config::TriggerMode;
+    use crate::clock::duration_s;
+    use crate::error::{DeviceError, DeviceResult};
+    use crate::frame::Frame;
+
+    /// Longest a library call on the worker may take before the async side gives up.
+    pub const CALL_TIMEOUT_S: f64 = 10.0;
+    /// How long one grab waits before the worker looks at its commands again.
+    pub const POLL: Duration = Duration::from_millis(50);
+    /// How long a frame that arrives with no trigger announced is held for an `expect` that
+    /// may still be on its way (the camera actor announces a trigger after firing it).
+    pub const EARLY_FRAME_GRACE_S: f64 = 1.0;
+
+    /// One image as the library delivered it, with the camera's own sequence number.
+    pub struct RawFrame {
+        pub sequence: u64,
+        /// Converted image, or why it could not be converted (the frame still counts).
+        pub image: DeviceResult<Image>,
+    }
+
+    /// A converted image: interleaved RGB u16 samples.
+    pub struct Image {
+        pub width: u32,
+        pub height: u32,
+        pub bit_depth: u8,
+        pub pixels: Vec<u16>,
+    }
+
+    /// What a blocking backend does on its own thread. Every call must return within a
+    /// bounded time (the library's own timeouts).
+    pub trait Blocking {
+        /// Sets exposure and gain.
+        fn configure(&mut self, exposure_s: f64, gain: f64) -> DeviceResult<()>;
+        /// Starts acquisition; returns the sequence number the first frame will carry, if known.
+        fn arm(&mut self) -> DeviceResult<Option<u64>>;
+        /// Stops acquisition.
+        fn disarm(&mut self) -> DeviceResult<()>;
+        /// Starts one exposure now (software trigger mode only).
+        fn software_trigger(&mut self) -> DeviceResult<()>;
+        /// Waits up to `timeout` for the next frame; `None` if none came.
+        fn grab(&mut self, timeout: Duration) -> DeviceResult<Option<RawFrame>>;
+        /// Readout time after an exposure, for the frame deadline.
+        fn readout_s(&self) -> f64;
+        /// Modulus of the sequence counter (0 = u64).
+        fn sequence_wrap(&self) -> u64 {
+            0
+        }
+    }
+
+    enum Cmd {
+        Configure(f64, f64, oneshot::Sender<DeviceResult<()>>),
+        Arm(bool, oneshot::Sender<DeviceResult<()>>),
+        Expect(u64, f64),
+    }
+
+    /// The async side: sends commands, receives accounted frames.
+    pub struct Link {
+        device: String,
+        cmd: std_mpsc::Sender<Cmd>,
+        frames: mpsc::Receiver<DeviceResult<Frame>>,
+        last_expected: Option<u64>,
+    }
+
+    impl Link {
+        /// Starts the worker thread; `open` runs on it and opens the camera.
+        pub fn spawn<B, F>(device: &str, mode: TriggerMode, open: F) -> DeviceResult<Self>
+        where
+            B: Blocking,
+            F: FnOnce() -> DeviceResult<B> + Send + 'static,
+        {
+            let (cmd_tx, cmd_rx) = std_mpsc::channel();
+            let (frame_tx, frames) = mpsc::channel(32);
+            let (ready_tx, ready_rx) = std_mpsc::channel();
+            let name = device.to_string();
+            std::thread::Builder::new()
+                .name(format!("cam-{device}"))
+                .spawn(move || match open() {
+                    Ok(cam) => {
+                        let _ = ready_tx.send(Ok(()));
+                        run(name, mode, cam, cmd_rx, frame_tx);
+                    }
+                    Err(e) => {
+                        let _ = ready_tx.send(Err(e));
+                    }
+                })
+                .map_err(|e| DeviceError::Other {
+                    device: device.to_string(),
+                    message: format!("cannot start the camera thread: {e}"),
+                })?;
+            match ready_rx.recv_timeout(duration_s(CALL_TIMEOUT_S)) {
+                Ok(Ok(())) => Ok(Self {
+                    device: device.to_string(),
+                    cmd: cmd_tx,
+                    frames,
+                    last_expected: None,
+                }),
+                Ok(Err(e)) => Err(e),
+                Err(_) => Err(DeviceError::Timeout {
+                    device: device.to_string(),
+                    request: "open".into(),
+                    timeout_s: CALL_TIMEOUT_S,
+                }),
+            }
+        }
+
+        fn gone(&self) -> DeviceError {
+            DeviceError::Gone {
+                device: self.device.clone(),
+            }
+        }
+
+        async fn call(
+            &mut self,
+            what: &str,
+            make: impl FnOnce(oneshot::Sender<DeviceResult<()>>) -> Cmd,
+        ) -> DeviceResult<()> {
+            let (tx, rx) = oneshot::channel();
+            self.cmd.send(make(tx)).map_err(|_| self.gone())?;
+            match tokio::time::timeout(duration_s(CALL_TIMEOUT_S), rx).await {
+                Ok(Ok(r)) => r,
+                Ok(Err(_)) => Err(self.gone()),
+                Err(_) => Err(DeviceError::Timeout {
+                    device: self.device.clone(),
+                    request: what.into(),
+                    timeout_s: CALL_TIMEOUT_S,
+                }),
+            }
+        }
+
+        /// Sets exposure and gain through the library.
+        pub async fn configure(&mut self, exposure_s: f64, gain: f64) -> DeviceResult<()> {
+            self.call("configure", |tx| Cmd::Configure(exposure_s, gain, tx))
+                .await
+        }
+
+        /// Arms or disarms; frames and errors not yet collected are dropped.
+        pub async fn set_armed(&mut self, armed: bool) -> DeviceResult<()> {
+            let what = if armed { "arm" } else { "disarm" };
+            let r = self.call(what, |tx| Cmd::Arm(armed, tx)).await;
+            while self.frames.try_recv().is_ok() {}
+            self.last_expected = None;
+            r
+        }
+
+        /// Announces trigger `trigger_id` (in software mode this fires the exposure).
+        pub fn expect(&mut self, trigger_id: u64, exposure_s: f64) -> DeviceResult<()> {
+            self.last_expected = Some(trigger_id);
+            self.cmd
+                .send(Cmd::Expect(trigger_id, exposure_s))
+                .map_err(|_| self.gone())
+        }
+
+        /// The next accounted frame or error. A missing-frame report about an older trigger
+        /// than the one last announced is skipped: the camera actor has already given up on
+        /// that trigger with its own timeout.
+        pub async fn next_frame(&mut self) -> DeviceResult<Frame> {
+            loop {
+                let item = self.frames.recv().await.ok_or_else(|| self.gone())?;
+                if let Err(DeviceError::MissingFrame { trigger_id, .. }) = &item
+                    && self.last_expected.is_some_and(|t| t != *trigger_id)
+                {
+                    tracing::warn!(device = %self.device, trigger_id, "stale missing-frame report");
+                    continue;
+                }
+                return item;
+            }
+        }
+    }
+
+    /// The worker loop: commands first, then one bounded grab, then the deadlines.
+    fn run<B: Blocking>(
+        device: String,
+        mode: TriggerMode,
+        mut cam: B,
+        cmds: std_mpsc::Receiver<Cmd>,
+        out: mpsc::Sender<DeviceResult<Frame>>,
+    ) {
+        let start = Instant::now();
+        let now = || start.elapsed().as_secs_f64();
+        let mut acc = TriggerAccounting::with_wrap(device.clone(), cam.sequence_wrap());
+        let mut armed = false;
+        let settings = std::cell::Cell::new((0.0f64, 1.0f64));
+        let send = |r: DeviceResult<Frame>| {
+            if out.try_send(r).is_err() {
+                tracing::warn!(device = %device, "frame queue full or closed; frame dropped");
+            }
+        };
+        let mut held: Option<(RawFrame, f64)> = None;
+        // Accounts for one frame and sends the outcome: errors for frames lost before it,
+        // then the frame tagged with its trigger (a late frame keeps its own old id, which the
+        // camera actor reports as unexpected), or an error for an extra frame.
+        let judge = |acc: &mut TriggerAccounting, raw: RawFrame, at: f64| {
+            for e in acc.expire(at) {
+                send(Err(e));
+            }
+            let d = acc.on_frame(raw.sequence);
+            for t in d.lost {
+                send(Err(DeviceError::MissingFrame {
+                    device: device.clone(),
+                    trigger_id: t,
+                    timeout_s: 0.0,
+                }));
+            }
+            let trigger_id = match d.verdict {
+                FrameVerdict::Answers(t) | FrameVerdict::Late(t) => t,
+                FrameVerdict::Extra => {
+                    tracing::warn!(device = %device, sequence = raw.sequence, "extra frame with no trigger waiting");
+                    send(Err(acc.unexpected(&FrameVerdict::Extra)));
+                    return;
+                }
+            };
+            send(raw.image.map(|img| Frame {
+                camera: device.clone(),
+                trigger_id,
+                width: img.width,
+                height: img.height,
+                bit_depth: img.bit_depth,
+                pixels: img.pixels,
+                exposure_s: settings.get().0,
+                gain: settings.get().1,
+                rig_time_s: at,
+                notes: serde_json::json!({ "sequence": raw.sequence }),
+                ground_truth: None,
+            }));
+        };
+        loop {
+            // Commands: block briefly when idle, poll when armed.
+            let first = if armed {
+                match cmds.try_recv() {
+                    Ok(c) => Some(c),
+                    Err(std_mpsc::TryRecvError::Empty) => None,
+                    Err(std_mpsc::TryRecvError::Disconnected) => break,
+                }
+            } else {
+                match cmds.recv_timeout(POLL) {
+                    Ok(c) => Some(c),
+                    Err(std_mpsc::RecvTimeoutError::Timeout) => None,
+                    Err(std_mpsc::RecvTimeoutError::Disconnected) => break,
+                }
+            };
+            for cmd in first
+                .into_iter()
+                .chain(std::iter::from_fn(|| cmds.try_recv().ok()))
+            {
+                match cmd {
+                    Cmd::Configure(e, g, reply) => {
+                        let r = cam.configure(e, g);
+                        if r.is_ok() {
+                            settings.set((e, g));
+                        }
+                        let _ = reply.send(r);
+                    }
+                    Cmd::Arm(true, reply) => {
+                        held = None;
+                        let r = cam.arm().map(|first| acc.reset(first));
+                        armed = r.is_ok();
+                        let _ = reply.send(r);
+                    }
+                    Cmd::Arm(false, reply) => {
+                        armed = false;
+                        held = None;
+                        acc.reset(None);
+                        let _ = reply.send(cam.disarm());
+                    }
+                    Cmd::Expect(id, e) => {
+                        if !armed {
+                            send(Err(DeviceError::NotArmed {
+                                device: device.clone(),
+                            }));
+                            continue;
+                        }
+                        acc.expect(id, now(), frame_timeout_s(e, cam.readout_s()));
+                        if let Some((raw, at)) = held.take() {
+                            judge(&mut acc, raw, at);
+                        } else if mode == TriggerMode::Software
+                            && let Err(err) = cam.software_trigger()
+                        {
+                            send(Err(err));
+                        }
+                    }
+                }
+            }
+            if !armed {
+                continue;
+            }
+            match cam.grab(POLL) {
+                Ok(None) => {}
+                Err(e) => send(Err(e)),
+                Ok(Some(raw)) => {
+                    let at = now();
+                    // A frame before any announced trigger may be early rather than extra:
+                    // hold it briefly. A second one means the first was extra.
+                    if acc.is_idle() {
+                        if let Some((old, _)) = held.take() {
+                            judge(&mut acc, old, at);
+                        }
+                        held = Some((raw, at));
+                    } else {
+                        judge(&mut acc, raw, at);
+                    }
+                }
+            }
+            if let Some((_, since)) = &held
+                && now() - since > EARLY_FRAME_GRACE_S
+                && let Some((raw, since)) = held.take()
+            {
+                judge(&mut acc, raw, since);
+            }
+            for e in acc.expire(now()) {
+                send(Err(e));
+            }
+        }
+        let _ = cam.disarm();
+    }
+}
+
+#[cfg(all(
+    test,
+    any(feature = "cam-v4l", feature = "cam-aravis", feature = "cam-gphoto2")
+))]
+mod worker_tests {
+    use std::sync::{Arc, Mutex};
+    use std::time::Duration;
+
+    use super::config::TriggerMode;
+    use super::worker::{Blocking, Image, Link, RawFrame};
+    use crate::error::{DeviceError, DeviceResult};
+
+    /// A hardware-triggered camera whose frames the test pushes (sequence numbers).
+    struct Mock(Arc<Mutex<Vec<u64>>>);
+
+    impl Blocking for Mock {
+        fn configure(&mut self, _: f64, _: f64) -> DeviceResult<()> {
+            Ok(())
+        }
+        fn arm(&mut self) -> DeviceResult<Option<u64>> {
+            Ok(None)
+        }
+        fn disarm(&mut self) -> DeviceResult<()> {
+            Ok(())
+        }
+        fn software_trigger(&mut self) -> DeviceResult<()> {
+            Ok(())
+        }
+        fn grab(&mut self, timeout: Duration) -> DeviceResult<Option<RawFrame>> {
+            let next = self.0.lock().ok().and_then(|mut q| q.pop());
+            match next {
+                Some(sequence) => Ok(Some(RawFrame {
+                    sequence,
+                    image: Ok(Image {
+                        width: 1,
+                        height: 1,
+                        bit_depth: 8,
+                        pixels: vec![1, 2, 3],
+                    }),
+                })),
+                None => {
+                    std::thread::sleep(timeout);
+                    Ok(None)
+                }
+            }
+        }
+        fn readout_s(&self) -> f64 {
+            0.01
+        }
+    }
+
+    /// The camera actor announces a trigger after firing it, so a fast frame can arrive
+    /// first: it is held and answers the trigger; a second frame without trigger is extra.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn early_frame_answers_the_trigger_announced_after_it() {
+        let q = Arc::new(Mutex::new(Vec::new()));
+        let q2 = q.clone();
+        let mut link =
+            Link::spawn("m", TriggerMode::Hardware, move || Ok(Mock(q2))).expect("spawn");
+        link.set_armed(true).await.expect("arm");
+        q.lock().expect("lock").push(10);
+        tokio::time::sleep(Duration::from_millis(150)).await;
+        link.expect(7, 0.01).expect("expect");
+        let f = tokio::time::timeout(Duration::from_secs(2), link.next_frame())
+            .await
+            .expect("in time")
+            .expect("frame");
+        assert_eq!(f.trigger_id, 7);
+        assert_eq!(f.notes["sequence"], 10);
+        // Two frames for one trigger: the second is held, then judged extra after the grace.
+        q.lock().expect("lock").extend([12, 11]);
+        link.expect(8, 0.01).expect("expect");
+        let f = tokio::time::timeout(Duration::from_secs(2), link.next_frame())
+            .await
+            .expect("in time")
+            .expect("frame");
+        assert_eq!(f.trigger_id, 8);
+        let e = tokio::time::timeout(Duration::from_secs(3), link.next_frame())
+            .await
+            .expect("in time")
+            .unwrap_err();
+        assert!(matches!(e, DeviceError::UnexpectedFrame { .. }), "{e}");
+    }
+}

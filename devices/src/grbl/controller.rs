@@ -1,0 +1,935 @@
+//! The connection to one GRBL 1.1 controller, shared by every axis (and the laser) that names
+//! its port.
+//!
+//! The connection is a [`SerialLink`] behind an async mutex that is taken per exchange (one
+//! line and its `ok`, one `?` and its report), never for a whole move, so a second axis can
+//! queue its move while the first one moves, and a keepalive can poll while everyone waits.
+//! Every line received is absorbed into the known state (replies matched to lines by the flow
+//! counter, the last status, alarms, resets), whoever happens to read it.
+//!
+//! **No frame at an unverified position.** The controller's position is trusted only after the
+//! axis was homed on the current connection. Connecting (the first use, and every reconnect
+//! after a lost link, a timeout or garbage) soft-resets the controller and marks every axis not
+//! homed, so a move fails with `NotHomed` until the axis is homed again; so do an `ALARM:N`, a
+//! status in state `Alarm` and a reset we did not ask for. Our own stop (feed hold, then reset
+//! in `Hold:0`) keeps the position, as GRBL does.
+
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Weak};
+
+use tokio::sync::{Mutex, MutexGuard};
+use tokio::time::Instant;
+
+use super::codec::{Command, Realtime, Reply, State, Status, axis_index, parse_line};
+use super::codes::{alarm_meaning, error_meaning};
+use super::flow::Flow;
+use crate::clock::duration_s;
+use crate::error::{DeviceError, DeviceResult};
+use crate::motion::move_duration_s;
+use crate::rig::AxisSpec;
+use crate::serial_link::SerialLink;
+
+/// Wait for the banner after a soft reset.
+const BANNER_TIMEOUT_S: f64 = 2.0;
+/// Quiet time that ends the messages following a banner (`[MSG:...]`, `ALARM:3`).
+const DRAIN_S: f64 = 0.1;
+/// Wait for the `ok` of a line that does not start motion, and for a status report.
+const REPLY_TIMEOUT_S: f64 = 1.0;
+/// Wait for a write to the port.
+const WRITE_TIMEOUT_S: f64 = 1.0;
+/// Longest single read while waiting, so the lock is released regularly.
+const SLICE_S: f64 = 0.05;
+/// Interval of status polls while a move or a feed hold runs.
+const POLL_S: f64 = 0.05;
+/// Polls in a row reporting Idle away from the target before a move is declared lost.
+const IDLE_AWAY_POLLS: u32 = 10;
+/// Keepalive period: well inside the emulated 3 s watchdog.
+const KEEPALIVE_S: f64 = 0.5;
+/// Replies kept for lines whose sender gave up waiting (cancelled futures).
+const DONE_KEPT: u64 = 64;
+/// Line ends of GRBL output (`\r\n`; either alone is accepted).
+const EOL: &[u8] = b"\r\n";
+
+/// One GRBL controller on one port; see the module docs for the recovery rules.
+pub struct GrblController {
+    label: String,
+    port: String,
+    /// Ids of the configured axes and their letters (fixed at construction).
+    axes: Vec<(char, String)>,
+    conn: Mutex<Conn>,
+    keepalive_enabled: AtomicBool,
+    keepalive_started: AtomicBool,
+    me: Weak<GrblController>,
+}
+
+impl GrblController {
+    /// A controller on `port` at `baud` serving `axes` (the axes that name this port; their
+    /// `controller_axis` letter and `steps_per_deg` are checked against `$100..$102` on
+    /// connect). `device_label` names the controller in errors that concern no single axis.
+    /// Nothing is opened until the first request.
+    pub fn new(device_label: &str, port: &str, baud: u32, axes: Vec<AxisSpec>) -> Arc<Self> {
+        let axes: Vec<(char, AxisSpec)> = axes
+            .into_iter()
+            .filter_map(|a| Some((letter_of(&a)?, a)))
+            .collect();
+        Arc::new_cyclic(|me| GrblController {
+            label: device_label.to_string(),
+            port: port.to_string(),
+            axes: axes.iter().map(|(l, a)| (*l, a.id.clone())).collect(),
+            conn: Mutex::new(Conn::new(device_label, port, baud, axes)),
+            keepalive_enabled: AtomicBool::new(true),
+            keepalive_started: AtomicBool::new(false),
+            me: me.clone(),
+        })
+    }
+
+    /// Name of the controller in errors.
+    pub fn label(&self) -> &str {
+        &self.label
+    }
+
+    /// Path of the serial port.
+    pub fn port(&self) -> &str {
+        &self.port
+    }
+
+    /// Switches the idle keepalive (`?` every 0.5 s while nobody talks) on or off; it is on by
+    /// default. Off only for tests that record the exact byte stream.
+    pub fn set_keepalive(&self, on: bool) {
+        self.keepalive_enabled.store(on, Ordering::Relaxed);
+    }
+
+    /// True if the axis with `letter` was homed on the current connection.
+    pub async fn is_homed(&self, letter: char) -> bool {
+        let c = self.conn.lock().await;
+        axis_index(letter).is_some_and(|i| c.ready() && c.homed[i] && !c.in_alarm)
+    }
+
+    /// True if `spec` is one of the axes this controller was built with, under its letter.
+    pub(crate) fn serves(&self, spec: &AxisSpec, letter: char) -> bool {
+        self.axes
+            .iter()
+            .any(|(l, id)| *l == letter && *id == spec.id)
+    }
+
+    /// Reads the status report (`?`), connecting first if needed.
+    pub async fn status(&self, device: &str) -> DeviceResult<Status> {
+        let r = async {
+            let mut c = self.ready_conn().await?;
+            c.query_status().await
+        }
+        .await;
+        r.map_err(|e| named(e, device))
+    }
+
+    /// Sends one command line and waits for its `ok` (an `error:N` is `Rejected`).
+    pub async fn command(&self, device: &str, cmd: Command, timeout_s: f64) -> DeviceResult<()> {
+        let r = async {
+            let deadline = Instant::now() + duration_s(timeout_s);
+            let (seq, epoch, alarms) = {
+                let mut c = self.ready_conn().await?;
+                let seq = c.send_line(&cmd, deadline, timeout_s).await?;
+                (seq, c.resets, c.alarm_events)
+            };
+            self.wait_reply(seq, epoch, alarms, &cmd, deadline, timeout_s)
+                .await
+        }
+        .await;
+        r.map_err(|e| named(e, device))
+    }
+
+    /// Homes the axis `letter` (`$HX`) and returns its machine position afterwards (0).
+    pub async fn home(&self, device: &str, letter: char, timeout_s: f64) -> DeviceResult<f64> {
+        let r = async {
+            let idx = index(letter, &self.label)?;
+            let cmd = Command::Home(Some(letter));
+            let deadline = Instant::now() + duration_s(timeout_s);
+            let (seq, epoch, alarms) = {
+                let mut c = self.ready_conn().await?;
+                let seq = c.send_line(&cmd, deadline, timeout_s).await?;
+                (seq, c.resets, c.alarm_events)
+            };
+            self.wait_reply(seq, epoch, alarms, &cmd, deadline, timeout_s)
+                .await?;
+            let mut c = self.conn.lock().await;
+            c.check_continuity(epoch, alarms, &cmd)?;
+            c.homed[idx] = true;
+            c.in_alarm = false;
+            c.motion_end = None;
+            let s = c.query_status().await?;
+            if s.state == State::Alarm {
+                return Err(c.other(format!(
+                    "still in Alarm after `{}`; check the homing switch of axis {letter} and `$22=1`",
+                    cmd.line()
+                )));
+            }
+            Ok(s.pos[idx])
+        }
+        .await;
+        r.map_err(|e| named(e, device))
+    }
+
+    /// Moves axis `letter` of `spec` to `target_deg` (`G90 G0`), waits until the controller
+    /// reports Idle at the target, and returns the position reached. Fails with `NotHomed`
+    /// unless the axis was homed on this connection.
+    pub async fn move_axis(
+        &self,
+        device: &str,
+        spec: &AxisSpec,
+        letter: char,
+        target_deg: f64,
+    ) -> DeviceResult<f64> {
+        let r = self.move_inner(device, spec, letter, target_deg).await;
+        r.map_err(|e| named(e, device))
+    }
+
+    /// The error for an alarm raised while a move of axis `idx` was under way: `HardLimit`
+    /// with the position for ALARM:1, `Alarm` otherwise.
+    async fn alarm_during_move(&self, idx: usize, e: DeviceError) -> DeviceError {
+        if !matches!(e, DeviceError::Alarm { code: 1, .. }) {
+            return e;
+        }
+        let mut c = self.conn.lock().await;
+        let pos = match c.query_status().await {
+            Ok(s) => Some(s.pos[idx]),
+            Err(_) => c.last_status.map(|s| s.pos[idx]),
+        };
+        c.alarm_error(pos)
+    }
+
+    async fn move_inner(
+        &self,
+        device: &str,
+        spec: &AxisSpec,
+        letter: char,
+        target_deg: f64,
+    ) -> DeviceResult<f64> {
+        let idx = index(letter, &self.label)?;
+        if !target_deg.is_finite() {
+            return Err(DeviceError::Other {
+                device: device.to_string(),
+                message: format!("target {target_deg} is not a number"),
+            });
+        }
+        let cmd = Command::Move {
+            axis: letter,
+            deg: target_deg,
+        };
+        let sent = (target_deg * 1000.0).round() / 1000.0;
+        // One and a half microsteps, plus the rounding of the 3-decimal report.
+        let tolerance = 1.5 / spec.steps_per_deg.max(1e-9) + 0.0005;
+        let (seq, epoch, alarms, deadline, timeout_s) = {
+            let mut c = self.ready_conn().await?;
+            if !c.homed[idx] || c.in_alarm {
+                return Err(DeviceError::NotHomed {
+                    device: device.to_string(),
+                });
+            }
+            let now = Instant::now();
+            let from = c.last_status.map_or(target_deg, |s| s.pos[idx]);
+            let physics = move_duration_s(from, target_deg, spec.kinematics(), 0.0) * 1.5 + 2.0;
+            // Moves of one controller run one after another: ours starts when the queue ends.
+            let start = c.motion_end.filter(|t| *t > now).unwrap_or(now);
+            let deadline = start + duration_s(physics);
+            c.motion_end = Some(deadline);
+            let timeout_s = (deadline - now).as_secs_f64();
+            let seq = c.send_line(&cmd, deadline, timeout_s).await?;
+            (seq, c.resets, c.alarm_events, deadline, timeout_s)
+        };
+        if let Err(e) = self
+            .wait_reply(seq, epoch, alarms, &cmd, deadline, timeout_s)
+            .await
+        {
+            return Err(self.alarm_during_move(idx, e).await);
+        }
+        let mut idle_away = 0;
+        loop {
+            let s = {
+                let mut c = self.conn.lock().await;
+                c.check_continuity(epoch, alarms, &cmd)?;
+                let s = c.query_status().await?;
+                if c.alarm_events != alarms || s.state == State::Alarm {
+                    return Err(c.alarm_error(Some(s.pos[idx])));
+                }
+                c.check_continuity(epoch, alarms, &cmd)?;
+                s
+            };
+            let pos = s.pos[idx];
+            if s.state == State::Idle {
+                if (pos - sent).abs() <= tolerance {
+                    return Ok(pos);
+                }
+                idle_away += 1;
+                if idle_away >= IDLE_AWAY_POLLS {
+                    let c = self.conn.lock().await;
+                    return Err(c.link.protocol(format!(
+                        "controller is Idle at {letter}{pos:.3} after `{}`; the move was lost",
+                        cmd.line()
+                    )));
+                }
+            } else {
+                idle_away = 0;
+            }
+            if Instant::now() >= deadline {
+                return Err(DeviceError::Timeout {
+                    device: device.to_string(),
+                    request: cmd.line(),
+                    timeout_s,
+                });
+            }
+            tokio::time::sleep(duration_s(POLL_S)).await;
+        }
+    }
+
+    /// Stops all motion of the controller: feed hold, wait until the hold is complete (at most
+    /// `decel_timeout_s`), then soft reset (which empties the planner; the position is kept
+    /// because the reset comes in `Hold:0`). Returns the machine position of `letter`.
+    pub async fn stop(
+        &self,
+        device: &str,
+        letter: char,
+        decel_timeout_s: f64,
+    ) -> DeviceResult<f64> {
+        let r = async {
+            let idx = index(letter, &self.label)?;
+            let mut c = self.conn.lock().await;
+            if !c.ready() {
+                // Connecting soft-resets the controller, which stops it as well.
+                drop(c);
+                let mut c = self.ready_conn().await?;
+                return Ok(c.query_status().await?.pos[idx]);
+            }
+            c.send_realtime(Realtime::FeedHold).await?;
+            let deadline = Instant::now() + duration_s(decel_timeout_s);
+            loop {
+                let s = c.query_status().await?;
+                let held = matches!(
+                    s.state,
+                    State::Hold(0)
+                        | State::Idle
+                        | State::Alarm
+                        | State::Door(_)
+                        | State::Sleep
+                        | State::Check
+                );
+                if held || Instant::now() >= deadline {
+                    break;
+                }
+                tokio::time::sleep(duration_s(POLL_S)).await;
+            }
+            c.soft_reset().await?;
+            Ok(c.query_status().await?.pos[idx])
+        }
+        .await;
+        r.map_err(|e| named(e, device))
+    }
+
+    /// The connection, connected and handshaken (reconnecting if the link was lost).
+    async fn ready_conn(&self) -> DeviceResult<MutexGuard<'_, Conn>> {
+        let mut c = self.conn.lock().await;
+        if !c.ready() {
+            c.handshake().await?;
+            self.start_keepalive();
+        }
+        Ok(c)
+    }
+
+    /// Waits for the reply to line `seq`, releasing the lock between reads.
+    async fn wait_reply(
+        &self,
+        seq: u64,
+        epoch: u64,
+        alarms: u64,
+        cmd: &Command,
+        deadline: Instant,
+        timeout_s: f64,
+    ) -> DeviceResult<()> {
+        loop {
+            let mut c = self.conn.lock().await;
+            if let Some(r) = c.done.remove(&seq) {
+                return r.map_err(|code| c.rejected(cmd, code));
+            }
+            c.check_continuity(epoch, alarms, cmd)?;
+            let now = Instant::now();
+            if now >= deadline {
+                return Err(c.deaf(&cmd.line(), timeout_s));
+            }
+            let slice = (deadline - now).as_secs_f64().min(SLICE_S);
+            c.pump(slice, &cmd.line()).await?;
+        }
+    }
+
+    fn start_keepalive(&self) {
+        if self.keepalive_started.swap(true, Ordering::Relaxed) {
+            return;
+        }
+        tokio::spawn(keepalive(self.me.clone()));
+    }
+}
+
+/// Polls `?` every 0.5 s while nobody else talks, so the controller's watchdog keeps the laser
+/// lease and a dead port is noticed (and reconnected on the next request). Ends when the
+/// controller is dropped.
+async fn keepalive(me: Weak<GrblController>) {
+    loop {
+        tokio::time::sleep(duration_s(KEEPALIVE_S)).await;
+        let Some(ctl) = me.upgrade() else { break };
+        if !ctl.keepalive_enabled.load(Ordering::Relaxed) {
+            continue;
+        }
+        let Ok(mut c) = ctl.conn.try_lock() else {
+            continue;
+        };
+        if c.ready()
+            && c.last_io.elapsed().as_secs_f64() >= KEEPALIVE_S * 0.9
+            && let Err(e) = c.query_status().await
+        {
+            tracing::warn!("{}: keepalive failed: {e}", ctl.label);
+        }
+    }
+}
+
+/// Why the controller's state was forgotten.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum ResetCause {
+    /// Our stop: feed hold, then 0x18 (position kept).
+    Stop,
+    /// A (re)connect or a resynchronisation after garbage.
+    Reconnect,
+    /// A banner nobody asked for: power glitch, another program, a watchdog.
+    Unexpected,
+}
+
+/// Everything known about the link and the controller, guarded by the controller's mutex.
+struct Conn {
+    link: SerialLink,
+    axes: Vec<(char, AxisSpec)>,
+    flow: Flow,
+    /// Handshake done on the currently open link.
+    connected: bool,
+    /// A write was interrupted (its future dropped): the controller may hold half a line.
+    writing: bool,
+    /// Replies to lines whose sender has not collected them yet: `Err(code)` for `error:N`.
+    done: BTreeMap<u64, Result<(), u32>>,
+    last_status: Option<Status>,
+    /// `?` sent whose report has not arrived yet.
+    status_outstanding: u32,
+    in_alarm: bool,
+    alarm_events: u64,
+    last_alarm: u32,
+    /// Counts resets and reconnects: lines and moves queued before one are gone.
+    resets: u64,
+    /// Why we are about to see a banner (we sent 0x18); `None`: a banner is unexpected.
+    expect_reset: Option<ResetCause>,
+    /// Why `resets` last went up.
+    last_reset: ResetCause,
+    homed: [bool; 3],
+    settings: BTreeMap<u32, f64>,
+    last_io: Instant,
+    /// Estimated latest end of the queued motion (moves run one after another).
+    motion_end: Option<Instant>,
+}
+
+impl Conn {
+    fn new(label: &str, port: &str, baud: u32, axes: Vec<(char, AxisSpec)>) -> Self {
+        Self {
+            link: SerialLink::new(label, port, baud),
+            axes,
+            flow: Flow::default(),
+            connected: false,
+            writing: false,
+            done: BTreeMap::new(),
+            last_status: None,
+            status_outstanding: 0,
+            in_alarm: false,
+            alarm_events: 0,
+            last_alarm: 0,
+            resets: 0,
+            expect_reset: None,
+            last_reset: ResetCause::Reconnect,
+            homed: [false; 3],
+            settings: BTreeMap::new(),
+            last_io: Instant::now(),
+            motion_end: None,
+        }
+    }
+
+    fn ready(&self) -> bool {
+        self.connected && self.link.is_open() && !self.writing
+    }
+
+    /// Opens the link, soft-resets the controller, checks the banner and `$100..$102`, and
+    /// reads the status. Every axis is not homed afterwards.
+    async fn handshake(&mut self) -> DeviceResult<()> {
+        self.connected = false;
+        self.writing = false;
+        self.link.open()?;
+        self.forget_controller_state(ResetCause::Reconnect);
+        self.homed = [false; 3];
+        self.in_alarm = false;
+        self.expect_reset = Some(ResetCause::Reconnect);
+        self.send_realtime(Realtime::SoftReset).await?;
+        self.await_banner(true).await?;
+        self.settings.clear();
+        let deadline = Instant::now() + duration_s(REPLY_TIMEOUT_S);
+        let cmd = Command::Settings;
+        let seq = self.send_line(&cmd, deadline, REPLY_TIMEOUT_S).await?;
+        loop {
+            if let Some(r) = self.done.remove(&seq) {
+                r.map_err(|code| self.rejected(&cmd, code))?;
+                break;
+            }
+            if Instant::now() >= deadline {
+                return Err(self.deaf("$$", REPLY_TIMEOUT_S));
+            }
+            self.pump(SLICE_S, "$$").await?;
+        }
+        self.check_steps()?;
+        let s = self.query_status().await?;
+        if s.state == State::Alarm {
+            tracing::info!(
+                "{}: controller is in Alarm after connecting; home the axes",
+                self.link.device()
+            );
+        }
+        self.connected = true;
+        Ok(())
+    }
+
+    /// Checks `$100..$102` against the configured axes' `steps_per_deg`.
+    fn check_steps(&mut self) -> DeviceResult<()> {
+        for (letter, spec) in &self.axes {
+            let Some(i) = axis_index(*letter) else {
+                continue;
+            };
+            let n = 100 + i as u32;
+            let want = spec.steps_per_deg;
+            let problem = match self.settings.get(&n) {
+                None => Some(format!("the controller did not report `${n}`")),
+                Some(v) if (v - want).abs() > 1e-3 * want.abs() => {
+                    Some(format!("`${n}` is {v} (steps per degree of axis {letter})"))
+                }
+                Some(_) => None,
+            };
+            if let Some(problem) = problem {
+                let e = DeviceError::Other {
+                    device: self.link.device().to_string(),
+                    message: format!(
+                        "{problem} on {} but axis `{}` has steps_per_deg {want}; send `${n}={want:.3}` to the controller or fix the rig file",
+                        self.link.path(),
+                        spec.id
+                    ),
+                };
+                self.link.close();
+                return Err(e);
+            }
+        }
+        Ok(())
+    }
+
+    /// Sends 0x18 and waits for the banner; the position survives (a reset in `Hold:0`).
+    async fn soft_reset(&mut self) -> DeviceResult<()> {
+        self.expect_reset = Some(ResetCause::Stop);
+        self.send_realtime(Realtime::SoftReset).await?;
+        self.motion_end = None;
+        self.await_banner(false).await
+    }
+
+    /// Reads until the banner (checking it is GRBL 1.1 when `first`), then the messages
+    /// that follow it.
+    async fn await_banner(&mut self, first: bool) -> DeviceResult<()> {
+        let deadline = Instant::now() + duration_s(BANNER_TIMEOUT_S);
+        let request = "soft reset (0x18), waiting for the `Grbl 1.1` banner";
+        loop {
+            let now = Instant::now();
+            if now >= deadline {
+                return Err(self.deaf(request, BANNER_TIMEOUT_S));
+            }
+            let slice = (deadline - now).as_secs_f64();
+            let Some(reply) = self.next_reply(slice, request).await? else {
+                continue;
+            };
+            let wrong = match &reply {
+                Reply::Banner { version } if !version.starts_with("1.1") => {
+                    Some(format!("Grbl {version}"))
+                }
+                Reply::Other(text) if first => Some(text.clone()),
+                _ => None,
+            };
+            if let Some(text) = wrong {
+                self.resync();
+                return Err(self
+                    .link
+                    .protocol(format!("wrong firmware banner `{text}`, expected GRBL 1.1")));
+            }
+            let banner = matches!(reply, Reply::Banner { .. });
+            self.absorb_or_resync(reply, request)?;
+            if banner {
+                break;
+            }
+        }
+        // `[MSG:'$H'|'$X' to unlock]`, `ALARM:3`: whatever follows within a short quiet time.
+        while let Some(reply) = self.next_reply(DRAIN_S, request).await? {
+            self.absorb_or_resync(reply, request)?;
+        }
+        Ok(())
+    }
+
+    /// Sends `?` and waits for the report (and any older ones still due).
+    async fn query_status(&mut self) -> DeviceResult<Status> {
+        let deadline = Instant::now() + duration_s(REPLY_TIMEOUT_S);
+        let mut epoch = self.resets;
+        let mut resent = false;
+        self.send_realtime(Realtime::Status).await?;
+        self.status_outstanding += 1;
+        loop {
+            if self.resets != epoch {
+                // The controller reset meanwhile and dropped the `?`: ask once more.
+                if resent {
+                    return Err(self.link.protocol("the controller keeps resetting"));
+                }
+                resent = true;
+                epoch = self.resets;
+                self.send_realtime(Realtime::Status).await?;
+                self.status_outstanding += 1;
+            }
+            if self.status_outstanding == 0
+                && let Some(s) = self.last_status
+            {
+                return Ok(s);
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                return Err(self.deaf("? (status report)", REPLY_TIMEOUT_S));
+            }
+            let slice = (deadline - now).as_secs_f64();
+            self.pump(slice, "? (status report)").await?;
+        }
+    }
+
+    /// Writes a command line once it fits the controller's buffer; returns its sequence number.
+    async fn send_line(
+        &mut self,
+        cmd: &Command,
+        deadline: Instant,
+        timeout_s: f64,
+    ) -> DeviceResult<u64> {
+        let bytes = cmd.bytes();
+        if !self.flow.can_ever_fit(bytes.len()) {
+            return Err(self.other(format!(
+                "`{}` is longer than the controller's receive buffer",
+                cmd.line()
+            )));
+        }
+        let seq = loop {
+            if let Some(seq) = self.flow.push(bytes.len()) {
+                break seq;
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                return Err(self.deaf(&cmd.line(), timeout_s));
+            }
+            let slice = (deadline - now).as_secs_f64().min(SLICE_S);
+            self.pump(slice, &cmd.line()).await?;
+            if !self.link.is_open() {
+                return Err(self.link.lost("closed while waiting for buffer space"));
+            }
+        };
+        self.writing = true;
+        self.link.write(&bytes, WRITE_TIMEOUT_S).await?;
+        self.writing = false;
+        self.last_io = Instant::now();
+        Ok(seq)
+    }
+
+    async fn send_realtime(&mut self, r: Realtime) -> DeviceResult<()> {
+        self.writing = true;
+        self.link.write(&[r.byte()], WRITE_TIMEOUT_S).await?;
+        self.writing = false;
+        self.last_io = Instant::now();
+        Ok(())
+    }
+
+    /// Reads one line within `slice_s` (None if none came) without absorbing it.
+    async fn next_reply(&mut self, slice_s: f64, request: &str) -> DeviceResult<Option<Reply>> {
+        match self.link.read_line(EOL, request, slice_s).await {
+            Ok(line) => Ok(Some(parse_line(&line))),
+            Err(DeviceError::Timeout { .. }) => Ok(None),
+            Err(e @ DeviceError::Protocol { .. }) => {
+                self.resync();
+                Err(e)
+            }
+            Err(e) => {
+                self.connected = false;
+                Err(e)
+            }
+        }
+    }
+
+    /// Reads and absorbs at most one line within `slice_s`.
+    async fn pump(&mut self, slice_s: f64, request: &str) -> DeviceResult<()> {
+        if let Some(reply) = self.next_reply(slice_s, request).await? {
+            self.absorb_or_resync(reply, request)?;
+        }
+        Ok(())
+    }
+
+    fn absorb_or_resync(&mut self, reply: Reply, request: &str) -> DeviceResult<()> {
+        if let Reply::Other(text) = &reply {
+            let e = self.link.protocol(format!(
+                "`{}` is not GRBL 1.1 output (while waiting for `{request}`)",
+                text.chars().take(80).collect::<String>()
+            ));
+            self.resync();
+            return Err(e);
+        }
+        self.absorb(reply);
+        Ok(())
+    }
+
+    /// Updates the known state with one line from the controller.
+    fn absorb(&mut self, reply: Reply) {
+        match reply {
+            Reply::Ok | Reply::Error(_) => {
+                let r = match reply {
+                    Reply::Error(code) => Err(code),
+                    _ => Ok(()),
+                };
+                match self.flow.pop() {
+                    Some(seq) => {
+                        self.done.insert(seq, r);
+                        let oldest = seq.saturating_sub(DONE_KEPT);
+                        self.done = self.done.split_off(&oldest);
+                    }
+                    None => tracing::debug!("{}: stray reply {r:?}", self.link.device()),
+                }
+            }
+            Reply::Alarm(code) => {
+                self.in_alarm = true;
+                self.alarm_events += 1;
+                self.last_alarm = code;
+                self.homed = [false; 3];
+                self.motion_end = None;
+                tracing::warn!(
+                    "{}: ALARM:{code} ({})",
+                    self.link.device(),
+                    alarm_meaning(code)
+                );
+            }
+            Reply::Status(s) => {
+                if s.state == State::Alarm {
+                    self.in_alarm = true;
+                    self.homed = [false; 3];
+                }
+                self.last_status = Some(s);
+                self.status_outstanding = self.status_outstanding.saturating_sub(1);
+            }
+            Reply::Banner { .. } => {
+                let cause = self.expect_reset.take().unwrap_or(ResetCause::Unexpected);
+                if cause == ResetCause::Unexpected {
+                    tracing::warn!(
+                        "{}: controller reset unexpectedly; axes must be homed again",
+                        self.link.device()
+                    );
+                    self.homed = [false; 3];
+                }
+                self.forget_controller_state(cause);
+            }
+            Reply::Message(m) => tracing::debug!("{}: [{m}]", self.link.device()),
+            Reply::Setting { n, value } => {
+                self.settings.insert(n, value);
+            }
+            Reply::Other(_) => {}
+        }
+    }
+
+    /// After a reset the controller has forgotten every line, report and move in flight.
+    fn forget_controller_state(&mut self, cause: ResetCause) {
+        self.last_reset = cause;
+        self.flow.clear();
+        self.done.clear();
+        self.status_outstanding = 0;
+        self.last_status = None;
+        self.motion_end = None;
+        self.resets += 1;
+    }
+
+    /// Garbage: drop the input and the flow count and reconnect (with handshake) on next use.
+    fn resync(&mut self) {
+        self.link.discard_input();
+        self.link.close();
+        self.connected = false;
+        self.expect_reset = None;
+        self.forget_controller_state(ResetCause::Reconnect);
+    }
+
+    /// The controller did not answer in time: close the link so the next request reconnects.
+    fn deaf(&mut self, request: &str, timeout_s: f64) -> DeviceError {
+        self.link.close();
+        self.connected = false;
+        DeviceError::Timeout {
+            device: self.link.device().to_string(),
+            request: request.to_string(),
+            timeout_s,
+        }
+    }
+
+    /// Fails if the controller was reset, the link lost, or an alarm raised since a request
+    /// (`epoch`, `alarms`) began.
+    fn check_continuity(&self, epoch: u64, alarms: u64, cmd: &Command) -> DeviceResult<()> {
+        if self.alarm_events != alarms {
+            return Err(self.alarm_error(None));
+        }
+        if self.resets != epoch {
+            let line = cmd.line();
+            return Err(match self.last_reset {
+                ResetCause::Stop => self.other(format!(
+                    "`{line}` interrupted: the controller was stopped (feed hold and reset)"
+                )),
+                ResetCause::Reconnect => self.link.protocol(format!(
+                    "the link was resynchronised or reconnected during `{line}`"
+                )),
+                ResetCause::Unexpected => self.link.protocol(format!(
+                    "the controller reset during `{line}` (power glitch or another program on the port)"
+                )),
+            });
+        }
+        if !self.ready() {
+            return Err(DeviceError::Disconnected {
+                device: self.link.device().to_string(),
+                port: self.link.path().to_string(),
+                reason: format!("the link was closed after a fault during `{}`", cmd.line()),
+            });
+        }
+        Ok(())
+    }
+
+    fn alarm_error(&self, position_deg: Option<f64>) -> DeviceError {
+        let device = self.link.device().to_string();
+        match (self.last_alarm, position_deg) {
+            (1, Some(position_deg)) => DeviceError::HardLimit {
+                device,
+                position_deg,
+            },
+            (code, _) => DeviceError::Alarm {
+                device,
+                code,
+                meaning: alarm_meaning(code).to_string(),
+            },
+        }
+    }
+
+    fn rejected(&self, cmd: &Command, code: u32) -> DeviceError {
+        DeviceError::Rejected {
+            device: self.link.device().to_string(),
+            command: cmd.line(),
+            code,
+            meaning: error_meaning(code).to_string(),
+        }
+    }
+
+    fn other(&self, message: String) -> DeviceError {
+        DeviceError::Other {
+            device: self.link.device().to_string(),
+            message,
+        }
+    }
+}
+
+/// The controller letter of a GRBL axis (`controller_axis`: one of X, Y, Z).
+pub(crate) fn letter_of(spec: &AxisSpec) -> Option<char> {
+    let text = spec.controller_axis.as_deref()?.trim();
+    let mut chars = text.chars();
+    let letter = chars.next()?.to_ascii_uppercase();
+    (chars.next().is_none() && axis_index(letter).is_some()).then_some(letter)
+}
+
+fn index(letter: char, label: &str) -> DeviceResult<usize> {
+    axis_index(letter).ok_or_else(|| DeviceError::Other {
+        device: label.to_string(),
+        message: format!("`{letter}` is not a GRBL axis letter (X, Y or Z)"),
+    })
+}
+
+/// The same error naming `name` as its device (an axis id instead of the controller).
+pub(crate) fn named(e: DeviceError, name: &str) -> DeviceError {
+    e.with_device(name)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rig::{AxisRole, Backend};
+
+    fn spec(letter: Option<&str>) -> AxisSpec {
+        AxisSpec {
+            id: "turntable".into(),
+            backend: Backend::Grbl,
+            port: Some("/dev/null".into()),
+            role: AxisRole::Turntable,
+            speed_deg_s: 30.0,
+            accel_deg_s2: 60.0,
+            min_deg: 0.0,
+            max_deg: 360.0,
+            backlash_deg: 0.0,
+            settle_s: 0.0,
+            homing_speed_deg_s: 20.0,
+            steps_per_deg: 142.222,
+            controller_axis: letter.map(str::to_string),
+            baud: None,
+        }
+    }
+
+    #[test]
+    fn axis_letters_are_x_y_or_z() {
+        assert_eq!(letter_of(&spec(Some("x"))), Some('X'));
+        assert_eq!(letter_of(&spec(Some(" Z "))), Some('Z'));
+        assert_eq!(letter_of(&spec(Some("A"))), None);
+        assert_eq!(letter_of(&spec(Some("XY"))), None);
+        assert_eq!(letter_of(&spec(None)), None);
+    }
+
+    #[test]
+    fn errors_are_renamed_to_the_axis() {
+        let e = named(
+            DeviceError::Timeout {
+                device: "grbl".into(),
+                request: "?".into(),
+                timeout_s: 1.0,
+            },
+            "turntable",
+        );
+        assert_eq!(e.device(), "turntable");
+    }
+
+    #[test]
+    fn absorb_matches_replies_to_lines_and_tracks_alarms_and_resets() {
+        let mut c = Conn::new("grbl", "/dev/null", 115_200, vec![('X', spec(Some("X")))]);
+        let a = c.flow.push(10).unwrap();
+        let b = c.flow.push(10).unwrap();
+        c.absorb(Reply::Ok);
+        c.absorb(Reply::Error(9));
+        assert_eq!(c.done.get(&a), Some(&Ok(())));
+        assert_eq!(c.done.get(&b), Some(&Err(9)));
+        c.homed = [true; 3];
+        c.absorb(Reply::Alarm(1));
+        assert!(c.in_alarm && c.homed == [false; 3] && c.alarm_events == 1);
+        assert!(matches!(
+            c.alarm_error(Some(3.0)),
+            DeviceError::HardLimit { position_deg, .. } if position_deg == 3.0
+        ));
+        c.homed = [true; 3];
+        c.expect_reset = Some(ResetCause::Stop);
+        let epoch = c.resets;
+        c.absorb(Reply::Banner {
+            version: "1.1h".into(),
+        });
+        assert_eq!(c.homed, [true; 3], "our own reset keeps the position");
+        assert_eq!(c.resets, epoch + 1);
+        c.absorb(Reply::Banner {
+            version: "1.1h".into(),
+        });
+        assert_eq!(c.homed, [false; 3], "an unexpected reset loses it");
+    }
+}
