@@ -78,33 +78,27 @@ pub(crate) struct Devices {
 /// Starts one emulator: link directory, link name, faults.
 type StartEmulator<'a> = dyn Fn(&Path, &str, Arc<Faults>) -> std::io::Result<EmulatorHandle> + 'a;
 
-/// True if the rig needs the simulated world: a simulated device, or emulation (the emulators
-/// move the world and the cameras render it).
-pub(crate) fn needs_world(spec: &RigSpec, emulate: bool) -> bool {
-    let backends = spec
-        .axes
+/// The backend of every device of the rig.
+fn backends(spec: &RigSpec) -> impl Iterator<Item = Backend> + '_ {
+    spec.axes
         .iter()
         .map(|a| a.backend)
         .chain(spec.switch_banks.iter().map(|b| b.backend))
         .chain(spec.cameras.iter().map(|c| c.backend))
         .chain(spec.trigger.iter().map(|t| t.backend))
         .chain(spec.laser.iter().map(|l| l.backend))
-        .chain(spec.cart.iter().map(|c| c.backend));
-    emulate || backends.into_iter().any(|b| b == Backend::Sim)
+        .chain(spec.cart.iter().map(|c| c.backend))
+}
+
+/// True if the rig needs the simulated world: a simulated device, or emulation (the emulators
+/// move the world and the cameras render it).
+pub(crate) fn needs_world(spec: &RigSpec, emulate: bool) -> bool {
+    emulate || backends(spec).any(|b| b == Backend::Sim)
 }
 
 /// True if any device has a real driver (it talks over a port in real time).
 pub fn needs_real_time(spec: &RigSpec) -> bool {
-    let backends = spec
-        .axes
-        .iter()
-        .map(|a| a.backend)
-        .chain(spec.switch_banks.iter().map(|b| b.backend))
-        .chain(spec.cameras.iter().map(|c| c.backend))
-        .chain(spec.trigger.iter().map(|t| t.backend))
-        .chain(spec.laser.iter().map(|l| l.backend))
-        .chain(spec.cart.iter().map(|c| c.backend));
-    backends.into_iter().any(|b| b != Backend::Sim)
+    backends(spec).any(|b| b != Backend::Sim)
 }
 
 fn port_of(id: &str, port: &Option<String>) -> Result<String, OpenError> {
@@ -330,7 +324,10 @@ pub(crate) fn open_devices(
 
     let mut cameras = BTreeMap::new();
     for c in &spec.cameras {
-        cameras.insert(c.id.clone(), open_camera(c, world, emulation.is_some())?);
+        cameras.insert(
+            c.id.clone(),
+            open_camera(c, spec.trigger.as_ref(), world, emulation.is_some())?,
+        );
     }
 
     Ok(Devices {
@@ -348,6 +345,7 @@ pub(crate) fn open_devices(
 /// or a real backend compiled into this build.
 fn open_camera(
     c: &CameraSpec,
+    trigger: Option<&stagehand_devices::rig::TriggerSpec>,
     world: &Option<Arc<World>>,
     emulate: bool,
 ) -> Result<CameraHandle, OpenError> {
@@ -357,7 +355,7 @@ fn open_camera(
             SimCamera::new(c.clone(), world_of(world)?.clone()),
         ));
     }
-    crate::camera_backends::open(c)
+    crate::camera_backends::open(c, trigger)
 }
 
 fn hid_bank(

@@ -311,6 +311,7 @@ fn quickstart_runs_with_every_serial_device_a_real_driver() {
     let script = ScriptSource::from_file(&root().join("sequences/quickstart.rhai")).unwrap();
     let o = run_emulated(script, &[], &[], out.path());
     assert_done(&o);
+    assert!(faults_seen(&o).is_empty(), "{:?}", faults_seen(&o));
     assert_no_duplicates(&o.dir);
     let raw: i64 = db(&o.dir)
         .query_row("SELECT COUNT(*) FROM frames WHERE kind = 'raw'", [], |r| {

@@ -31,6 +31,8 @@ use crate::rig::AxisSpec;
 use crate::serial_link::SerialLink;
 
 /// Wait for the banner after a soft reset.
+/// How far a move's deadline is pushed out each time the controller is seen moving.
+const MOVE_PROGRESS_S: f64 = 5.0;
 const BANNER_TIMEOUT_S: f64 = 2.0;
 /// Quiet time that ends the messages following a banner (`[MSG:...]`, `ALARM:3`).
 const DRAIN_S: f64 = 0.1;
@@ -244,6 +246,11 @@ impl GrblController {
             return Err(self.alarm_during_move(idx, e).await);
         }
         let mut idle_away = 0;
+        // While the controller is visibly moving (an earlier queued move, ours), the wait is
+        // extended: the deadline guards against a stalled controller, not a busy one. The
+        // axis handle's own timeout (which allows for the other axes) still bounds it.
+        let mut deadline = deadline;
+        let mut last_pos: Option<[f64; 3]> = None;
         loop {
             let s = {
                 let mut c = self.conn.lock().await;
@@ -256,6 +263,11 @@ impl GrblController {
                 s
             };
             let pos = s.pos[idx];
+            if s.state == State::Run && last_pos.is_some_and(|p| p != s.pos) {
+                deadline =
+                    deadline.max(Instant::now() + duration_s(timeout_s.min(MOVE_PROGRESS_S)));
+            }
+            last_pos = Some(s.pos);
             if s.state == State::Idle {
                 if (pos - sent).abs() <= tolerance {
                     return Ok(pos);
