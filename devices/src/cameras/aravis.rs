@@ -8,12 +8,11 @@ use std::time::Duration;
 use aravis::prelude::*;
 use aravis::{AcquisitionMode, Auto, Buffer, BufferStatus, Camera, PixelFormat, Stream};
 
+use super::HardwareCamera;
 use super::config::{self, TriggerMode};
 use super::pixels;
 use super::worker::{Blocking, Image, Link, RawFrame};
-use crate::camera::CameraDriver;
 use crate::error::{DeviceError, DeviceResult};
-use crate::frame::Frame;
 use crate::rig::CameraSpec;
 
 /// The input line a hardware trigger is wired to.
@@ -22,13 +21,11 @@ pub const TRIGGER_LINE: &str = "Line1";
 const BUFFERS: usize = 8;
 
 /// A GenICam camera driven from its own thread.
-pub struct AravisCamera {
-    link: Link,
-}
+pub struct AravisCamera;
 
 impl AravisCamera {
     /// Opens the camera whose GenICam device id is `spec.port`.
-    pub fn open(spec: &CameraSpec, mode: TriggerMode) -> DeviceResult<Self> {
+    pub fn open(spec: &CameraSpec, mode: TriggerMode) -> DeviceResult<HardwareCamera> {
         let id = config::aravis_device_id(spec)?;
         let spec = spec.clone();
         let link = Link::spawn(&spec.id.clone(), mode, move || {
@@ -39,25 +36,7 @@ impl AravisCamera {
             })?;
             Worker::new(spec, id, mode, camera)
         })?;
-        Ok(Self { link })
-    }
-}
-
-impl CameraDriver for AravisCamera {
-    async fn configure(&mut self, exposure_s: f64, gain: f64) -> DeviceResult<()> {
-        self.link.configure(exposure_s, gain).await
-    }
-    async fn arm(&mut self) -> DeviceResult<()> {
-        self.link.set_armed(true).await
-    }
-    async fn disarm(&mut self) -> DeviceResult<()> {
-        self.link.set_armed(false).await
-    }
-    async fn next_frame(&mut self) -> DeviceResult<Frame> {
-        self.link.next_frame().await
-    }
-    async fn expect(&mut self, trigger_id: u64, exposure_s: f64) -> DeviceResult<()> {
-        self.link.expect(trigger_id, exposure_s)
+        Ok(link)
     }
 }
 

@@ -14,45 +14,24 @@ use gphoto2::file::CameraFilePath;
 use gphoto2::widget::RadioWidget;
 use gphoto2::{Camera, Context};
 
+use super::HardwareCamera;
 use super::config::{self, Gphoto2Target, TriggerMode};
 use super::worker::{Blocking, Image, Link, RawFrame};
-use crate::camera::CameraDriver;
 use crate::error::{DeviceError, DeviceResult};
-use crate::frame::Frame;
 use crate::rig::CameraSpec;
 
 /// A libgphoto2 camera driven from its own thread.
-pub struct Gphoto2Camera {
-    link: Link,
-}
+pub struct Gphoto2Camera;
 
 impl Gphoto2Camera {
     /// Opens the camera named by `spec.port` (`usb:BUS,DEV` or a unique model name).
-    pub fn open(spec: &CameraSpec, mode: TriggerMode) -> DeviceResult<Self> {
+    pub fn open(spec: &CameraSpec, mode: TriggerMode) -> DeviceResult<HardwareCamera> {
         let target = config::gphoto2_target(spec)?;
         let spec = spec.clone();
         let link = Link::spawn(&spec.id.clone(), mode, move || {
             Worker::open(spec, target, mode)
         })?;
-        Ok(Self { link })
-    }
-}
-
-impl CameraDriver for Gphoto2Camera {
-    async fn configure(&mut self, exposure_s: f64, gain: f64) -> DeviceResult<()> {
-        self.link.configure(exposure_s, gain).await
-    }
-    async fn arm(&mut self) -> DeviceResult<()> {
-        self.link.set_armed(true).await
-    }
-    async fn disarm(&mut self) -> DeviceResult<()> {
-        self.link.set_armed(false).await
-    }
-    async fn next_frame(&mut self) -> DeviceResult<Frame> {
-        self.link.next_frame().await
-    }
-    async fn expect(&mut self, trigger_id: u64, exposure_s: f64) -> DeviceResult<()> {
-        self.link.expect(trigger_id, exposure_s)
+        Ok(link)
     }
 }
 

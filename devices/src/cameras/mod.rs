@@ -173,6 +173,10 @@ pub mod pixels {
 
 /// The std thread that owns a blocking camera library, and the async link to it.
 #[cfg(any(feature = "cam-v4l", feature = "cam-aravis", feature = "cam-gphoto2"))]
+/// A real camera: the async side of a backend's worker thread. Every backend's `open` returns
+/// one; they differ only in the blocking code on the thread.
+pub use worker::Link as HardwareCamera;
+
 mod worker {
     use std::sync::mpsc as std_mpsc;
     use std::time::{Duration, Instant};
@@ -233,6 +237,24 @@ mod worker {
         Configure(f64, f64, oneshot::Sender<DeviceResult<()>>),
         Arm(bool, oneshot::Sender<DeviceResult<()>>),
         Expect(u64, f64),
+    }
+
+    impl crate::camera::CameraDriver for Link {
+        async fn configure(&mut self, exposure_s: f64, gain: f64) -> DeviceResult<()> {
+            Link::configure(self, exposure_s, gain).await
+        }
+        async fn arm(&mut self) -> DeviceResult<()> {
+            self.set_armed(true).await
+        }
+        async fn disarm(&mut self) -> DeviceResult<()> {
+            self.set_armed(false).await
+        }
+        async fn next_frame(&mut self) -> DeviceResult<Frame> {
+            Link::next_frame(self).await
+        }
+        async fn expect(&mut self, trigger_id: u64, exposure_s: f64) -> DeviceResult<()> {
+            Link::expect(self, trigger_id, exposure_s)
+        }
     }
 
     /// The async side: sends commands, receives accounted frames.

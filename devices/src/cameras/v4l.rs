@@ -16,12 +16,11 @@ use v4l::io::traits::{CaptureStream, Stream as _};
 use v4l::video::Capture;
 use v4l::{Device, Format, FourCC};
 
+use super::HardwareCamera;
 use super::config::{self, TriggerMode};
 use super::pixels;
 use super::worker::{Blocking, Image, Link, RawFrame};
-use crate::camera::CameraDriver;
 use crate::error::{DeviceError, DeviceResult};
-use crate::frame::Frame;
 use crate::rig::CameraSpec;
 
 /// V4L2 control ids (linux/v4l2-controls.h).
@@ -36,37 +35,17 @@ const EXPOSURE_MANUAL: i64 = 1;
 const FORMATS: [&[u8; 4]; 5] = [b"Y16 ", b"GREY", b"RGB3", b"BGR3", b"YUYV"];
 
 /// A V4L2 camera driven from its own thread.
-pub struct V4lCamera {
-    link: Link,
-}
+pub struct V4lCamera;
 
 impl V4lCamera {
     /// Opens the device named by `spec.port` and negotiates a format we can convert.
-    pub fn open(spec: &CameraSpec, mode: TriggerMode) -> DeviceResult<Self> {
+    pub fn open(spec: &CameraSpec, mode: TriggerMode) -> DeviceResult<HardwareCamera> {
         let path = config::v4l_device_path(spec)?;
         let spec = spec.clone();
         let link = Link::spawn(&spec.id.clone(), mode, move || {
             Worker::open(spec, path, mode)
         })?;
-        Ok(Self { link })
-    }
-}
-
-impl CameraDriver for V4lCamera {
-    async fn configure(&mut self, exposure_s: f64, gain: f64) -> DeviceResult<()> {
-        self.link.configure(exposure_s, gain).await
-    }
-    async fn arm(&mut self) -> DeviceResult<()> {
-        self.link.set_armed(true).await
-    }
-    async fn disarm(&mut self) -> DeviceResult<()> {
-        self.link.set_armed(false).await
-    }
-    async fn next_frame(&mut self) -> DeviceResult<Frame> {
-        self.link.next_frame().await
-    }
-    async fn expect(&mut self, trigger_id: u64, exposure_s: f64) -> DeviceResult<()> {
-        self.link.expect(trigger_id, exposure_s)
+        Ok(link)
     }
 }
 
