@@ -171,12 +171,13 @@ pub mod pixels {
     }
 }
 
-/// The std thread that owns a blocking camera library, and the async link to it.
-#[cfg(any(feature = "cam-v4l", feature = "cam-aravis", feature = "cam-gphoto2"))]
 /// A real camera: the async side of a backend's worker thread. Every backend's `open` returns
 /// one; they differ only in the blocking code on the thread.
+#[cfg(any(feature = "cam-v4l", feature = "cam-aravis", feature = "cam-gphoto2"))]
 pub use worker::Link as HardwareCamera;
 
+/// The std thread that owns a blocking camera library, and the async link to it.
+#[cfg(any(feature = "cam-v4l", feature = "cam-aravis", feature = "cam-gphoto2"))]
 mod worker {
     use std::sync::mpsc as std_mpsc;
     use std::time::{Duration, Instant};
