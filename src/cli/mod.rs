@@ -73,6 +73,28 @@ enum Command {
     },
     /// List serial ports, HID relays and cameras with rig-file snippets.
     Devices(devices::DevicesArgs),
+    /// Run the daemon: own the rig's devices and serve the HTTP API, live events and the
+    /// dashboard.
+    Serve {
+        /// Rig: `lightstage` (default, simulated), `reflectometer` (simulated) or a rig TOML file.
+        #[arg(long)]
+        rig: Option<String>,
+        /// Address to listen on (loopback unless told otherwise).
+        #[arg(long, default_value = "127.0.0.1:8080")]
+        listen: std::net::SocketAddr,
+        /// Data directory: API tokens, run directories and uploaded scripts.
+        #[arg(long, default_value = "stagehand-data")]
+        data: PathBuf,
+        /// Directory of scripts offered on the dashboard (default: `sequences` if it exists).
+        #[arg(long)]
+        scripts: Option<PathBuf>,
+        /// Seed of the simulated sensor noise.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Run the real serial drivers against firmware emulators (see `run --emulate`).
+        #[arg(long)]
+        emulate: bool,
+    },
     /// Finish an interrupted run (after a crash, kill, abort or full disk).
     Resume {
         run_dir: PathBuf,
@@ -122,6 +144,30 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
     let started = std::time::Instant::now();
     match command {
         Command::Sim { command } => Ok(sim::run(command)),
+        Command::Serve {
+            rig,
+            listen,
+            data,
+            scripts,
+            seed,
+            emulate,
+        } => {
+            let scripts = scripts.or_else(|| {
+                let default = PathBuf::from("sequences");
+                default.is_dir().then_some(default)
+            });
+            let opts = crate::daemon::ServeOptions {
+                rig,
+                listen,
+                data,
+                scripts,
+                seed,
+                emulation: emulation(emulate)?,
+            };
+            crate::daemon::serve(opts)
+                .map(|()| 0)
+                .map_err(|e| SessionError::Io(e.to_string()))
+        }
         Command::Devices(args) => devices::run(args)
             .map(|()| 0)
             .map_err(|e| SessionError::Io(e.to_string())),

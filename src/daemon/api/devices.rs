@@ -1,0 +1,9 @@
+//! devices endpoints.
+
+use utoipa_axum::router::OpenApiRouter;
+
+use crate::daemon::state::AppState;
+
+pub fn routes() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+}

@@ -1,0 +1,170 @@
+//! Bearer tokens and roles. Two tokens are created on the daemon's first start and stored in
+//! `<data>/tokens.json` with mode 0600: one for operators (may change the rig), one read-only.
+//! Tokens are compared in constant time. `GET`/`HEAD` requests need any token; every other
+//! method needs the operator token. Browsers' `EventSource` and `<img>` cannot send headers, so
+//! `GET` requests may carry the token as `?access_token=` instead.
+
+use std::io::Write;
+use std::os::unix::fs::{OpenOptionsExt, PermissionsExt};
+use std::path::{Path, PathBuf};
+
+use axum::extract::{Request, State};
+use axum::http::{Method, StatusCode, header};
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
+use serde::{Deserialize, Serialize};
+use subtle::ConstantTimeEq;
+
+use super::error::ApiError;
+use super::state::AppState;
+
+/// What a token allows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Role {
+    /// May read state, events, runs and frames.
+    ReadOnly,
+    /// May also move axes, switch lamps and the laser, run scripts and e-stop.
+    Operator,
+}
+
+/// The daemon's tokens, as stored in `tokens.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Tokens {
+    pub operator: String,
+    pub read_only: String,
+}
+
+/// The file name of the tokens inside the data directory.
+pub const TOKENS_FILE: &str = "tokens.json";
+
+impl Tokens {
+    /// Loads `<data>/tokens.json`, creating it (mode 0600, fresh random tokens) on first start.
+    /// A file others can read is refused: the tokens would be worthless.
+    pub fn load_or_create(data_dir: &Path) -> Result<(Tokens, PathBuf, bool), String> {
+        let path = data_dir.join(TOKENS_FILE);
+        match std::fs::read_to_string(&path) {
+            Ok(text) => {
+                let mode = std::fs::metadata(&path)
+                    .map_err(|e| format!("{}: {e}", path.display()))?
+                    .permissions()
+                    .mode();
+                if mode & 0o077 != 0 {
+                    return Err(format!(
+                        "{}: mode {:o} lets other users read the API tokens; run `chmod 600 {}`",
+                        path.display(),
+                        mode & 0o777,
+                        path.display()
+                    ));
+                }
+                let tokens: Tokens = serde_json::from_str(&text).map_err(|e| {
+                    format!(
+                        "{}: {e}; fix it or delete it to get new tokens",
+                        path.display()
+                    )
+                })?;
+                if tokens.operator.len() < 16 || tokens.read_only.len() < 16 {
+                    return Err(format!(
+                        "{}: tokens must be at least 16 characters; delete the file to get new ones",
+                        path.display()
+                    ));
+                }
+                Ok((tokens, path, false))
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                let tokens = Tokens {
+                    operator: random_token()?,
+                    read_only: random_token()?,
+                };
+                let text = serde_json::to_string_pretty(&tokens).map_err(|e| e.to_string())?;
+                let mut f = std::fs::OpenOptions::new()
+                    .write(true)
+                    .create_new(true)
+                    .mode(0o600)
+                    .open(&path)
+                    .map_err(|e| format!("cannot create {}: {e}", path.display()))?;
+                f.write_all(text.as_bytes())
+                    .and_then(|()| f.sync_all())
+                    .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+                Ok((tokens, path, true))
+            }
+            Err(e) => Err(format!("cannot read {}: {e}", path.display())),
+        }
+    }
+
+    /// The role `token` grants, comparing against both tokens in constant time.
+    pub fn role_of(&self, token: &str) -> Option<Role> {
+        let t = token.as_bytes();
+        let op: bool = t.ct_eq(self.operator.as_bytes()).into();
+        let ro: bool = t.ct_eq(self.read_only.as_bytes()).into();
+        if op {
+            Some(Role::Operator)
+        } else if ro {
+            Some(Role::ReadOnly)
+        } else {
+            None
+        }
+    }
+}
+
+/// 32 random bytes as 64 hex digits.
+fn random_token() -> Result<String, String> {
+    let mut bytes = [0u8; 32];
+    getrandom::fill(&mut bytes).map_err(|e| format!("no randomness for the API tokens: {e}"))?;
+    Ok(bytes.iter().map(|b| format!("{b:02x}")).collect())
+}
+
+/// The token a request carries: `Authorization: Bearer …`, or `?access_token=…` on `GET`.
+fn token_of(req: &Request) -> Option<String> {
+    if let Some(v) = req.headers().get(header::AUTHORIZATION) {
+        let v = v.to_str().ok()?;
+        let (scheme, token) = v.split_once(' ')?;
+        return scheme
+            .eq_ignore_ascii_case("bearer")
+            .then(|| token.trim().to_string());
+    }
+    if req.method() == Method::GET {
+        let query = req.uri().query()?;
+        return query
+            .split('&')
+            .find_map(|kv| kv.strip_prefix("access_token=").map(|t| t.to_string()));
+    }
+    None
+}
+
+/// Middleware on `/api/`: 401 without a valid token, 403 when a read-only token tries to
+/// change something. Puts the caller's [`Role`] in the request's extensions.
+pub async fn require_token(State(app): State<AppState>, mut req: Request, next: Next) -> Response {
+    let Some(token) = token_of(&req) else {
+        return unauthorized("no bearer token");
+    };
+    let Some(role) = app.tokens.role_of(&token) else {
+        return unauthorized("the bearer token is not valid");
+    };
+    let reads = matches!(*req.method(), Method::GET | Method::HEAD);
+    if !reads && role != Role::Operator {
+        return ApiError::new(
+            StatusCode::FORBIDDEN,
+            format!(
+                "{} {} needs the operator token",
+                req.method(),
+                req.uri().path()
+            ),
+        )
+        .hint("this token is read-only; the operator token is in the daemon's tokens.json")
+        .into_response();
+    }
+    req.extensions_mut().insert(role);
+    next.run(req).await
+}
+
+fn unauthorized(what: &str) -> Response {
+    let mut r = ApiError::new(StatusCode::UNAUTHORIZED, what)
+        .hint("send `Authorization: Bearer <token>`; the tokens are in tokens.json in the daemon's data directory")
+        .into_response();
+    r.headers_mut().insert(
+        header::WWW_AUTHENTICATE,
+        header::HeaderValue::from_static("Bearer"),
+    );
+    r
+}

@@ -1,0 +1,95 @@
+//! The event hub: everything the dashboard and API clients follow live (device changes, run
+//! progress, new frames, prompts, warnings, e-stop) goes through one broadcast channel with a
+//! sequence number, and the last events stay in a ring for the event log.
+//!
+//! Publishing never waits: a subscriber that falls behind loses events (the channel is
+//! bounded) and the SSE stream then sends a `resync` event with the whole current state, so a
+//! slow client can never slow the executor.
+
+use std::collections::VecDeque;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use serde::Serialize;
+use tokio::sync::broadcast;
+use utoipa::ToSchema;
+
+/// How many events a subscriber may fall behind before it is resynchronised.
+pub const CHANNEL_CAPACITY: usize = 1024;
+/// How many events `GET /api/events/recent` keeps.
+pub const RECENT: usize = 200;
+
+/// One published event.
+#[derive(Debug, Clone, Serialize, ToSchema)]
+pub struct HubEvent {
+    /// Increasing number, also the SSE `id`.
+    pub seq: u64,
+    /// `run`, `device`, `frame`, `prompt`, `warning`, `estop` (the SSE event name).
+    pub kind: String,
+    /// Wall-clock Unix time in seconds.
+    pub unix_s: f64,
+    /// The event itself (its shape depends on `kind`; see the README's API section).
+    #[schema(value_type = Object)]
+    pub data: serde_json::Value,
+}
+
+/// The daemon's event hub.
+pub struct EventHub {
+    tx: broadcast::Sender<HubEvent>,
+    seq: AtomicU64,
+    recent: Mutex<VecDeque<HubEvent>>,
+}
+
+impl Default for EventHub {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl EventHub {
+    pub fn new() -> Self {
+        Self {
+            tx: broadcast::channel(CHANNEL_CAPACITY).0,
+            seq: AtomicU64::new(0),
+            recent: Mutex::new(VecDeque::with_capacity(RECENT)),
+        }
+    }
+
+    /// Publishes an event; never blocks, whoever listens or not.
+    pub fn publish(&self, kind: &str, data: impl Serialize) {
+        let data = serde_json::to_value(data).unwrap_or_else(
+            |e| serde_json::json!({"error": format!("event not serialisable: {e}")}),
+        );
+        // The ring lock also orders sequence numbers with what subscribers see.
+        let mut recent = self.recent.lock().unwrap_or_else(|p| p.into_inner());
+        let event = HubEvent {
+            seq: self.seq.fetch_add(1, Ordering::Relaxed) + 1,
+            kind: kind.to_string(),
+            unix_s: crate::executor::wall_now(),
+            data,
+        };
+        if recent.len() == RECENT {
+            recent.pop_front();
+        }
+        recent.push_back(event.clone());
+        let _ = self.tx.send(event);
+        metrics::counter!("stagehand_events_published_total", "kind" => kind.to_string())
+            .increment(1);
+    }
+
+    /// A receiver of every event published from now on.
+    pub fn subscribe(&self) -> broadcast::Receiver<HubEvent> {
+        self.tx.subscribe()
+    }
+
+    /// The last [`RECENT`] events, oldest first.
+    pub fn recent(&self) -> Vec<HubEvent> {
+        let recent = self.recent.lock().unwrap_or_else(|p| p.into_inner());
+        recent.iter().cloned().collect()
+    }
+
+    /// Number of live subscribers (SSE clients and internal listeners).
+    pub fn subscribers(&self) -> usize {
+        self.tx.receiver_count()
+    }
+}

@@ -1,0 +1,254 @@
+//! The daemon (`stagehand serve`): the only owner of the rig's devices. It runs capture
+//! scripts one at a time and serves the HTTP API under `/api/`, its OpenAPI document at
+//! `/openapi.json` with a vendored Swagger UI at `/docs/`, live events over SSE, Prometheus
+//! metrics and the dashboard at `/`.
+//!
+//! The daemon runs in real time on a multi-threaded runtime, also on the simulated rig (the
+//! CLI's `run` uses the virtual clock instead): a simulated rig then behaves like the hardware,
+//! and the dashboard shows a run at the pace the real rig would go.
+
+pub mod api;
+pub mod auth;
+pub mod device_state;
+pub mod error;
+pub mod estop;
+pub mod events;
+pub mod runs;
+pub mod state;
+mod web;
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::{Arc, OnceLock};
+
+use axum::Router;
+use axum::extract::DefaultBodyLimit;
+use axum::http::{StatusCode, Uri};
+use axum::response::IntoResponse;
+use metrics_exporter_prometheus::{PrometheusBuilder, PrometheusHandle};
+use stagehand_devices::clock::RigClock;
+use tokio::sync::oneshot;
+use utoipa_swagger_ui::SwaggerUi;
+
+use self::auth::Tokens;
+use self::error::ApiError;
+use self::state::{AppState, Daemon};
+use crate::hardware::Emulation;
+use crate::rig::{Rig, RigSource};
+
+/// Largest request body the API accepts (scripts are text; nothing else is big).
+pub const MAX_BODY_BYTES: usize = 1 << 20;
+
+/// `stagehand serve` options.
+#[derive(Debug, Clone)]
+pub struct ServeOptions {
+    /// `None`, `lightstage`, `reflectometer` or a rig TOML file (as for `run`).
+    pub rig: Option<String>,
+    pub listen: SocketAddr,
+    pub data: PathBuf,
+    /// Built-in scripts offered on the dashboard.
+    pub scripts: Option<PathBuf>,
+    pub seed: u64,
+    pub emulation: Option<Emulation>,
+}
+
+/// Why the daemon could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum DaemonError {
+    #[error("{0}")]
+    Rig(#[from] stagehand_devices::rig::RigError),
+    #[error("{0}")]
+    Open(#[from] crate::rig::OpenError),
+    #[error("data directory {path}: {reason}")]
+    Data { path: String, reason: String },
+    #[error("{0}")]
+    Tokens(String),
+    #[error(
+        "cannot listen on {addr}: {reason}; is another daemon running? pick another with --listen"
+    )]
+    Listen { addr: SocketAddr, reason: String },
+    #[error("{0}")]
+    Io(String),
+}
+
+/// A daemon serving in the background of the current runtime.
+pub struct RunningDaemon {
+    /// The address it listens on (useful with port 0).
+    pub addr: SocketAddr,
+    pub state: AppState,
+    /// Where the tokens are, and whether they were created just now.
+    pub tokens_path: PathBuf,
+    pub tokens_created: bool,
+    shutdown: Option<oneshot::Sender<()>>,
+    server: tokio::task::JoinHandle<()>,
+}
+
+impl RunningDaemon {
+    /// Stops serving: aborts any run, puts the rig in its safe state, closes the listener.
+    pub async fn shutdown(mut self) {
+        self.state.runs.abort();
+        if let Some(tx) = self.shutdown.take() {
+            let _ = tx.send(());
+        }
+        let _ = self.server.await;
+        self.state.runs.wait_idle().await;
+        if let Err(e) = self.state.rig.safe_state().await {
+            tracing::error!("shutdown: safe state: {e}");
+        }
+    }
+}
+
+/// The process's metrics recorder (installed once; every daemon in the process shares it).
+fn metrics_handle() -> PrometheusHandle {
+    static HANDLE: OnceLock<PrometheusHandle> = OnceLock::new();
+    HANDLE
+        .get_or_init(|| {
+            let recorder = PrometheusBuilder::new().build_recorder();
+            let handle = recorder.handle();
+            if metrics::set_global_recorder(recorder).is_err() {
+                tracing::warn!("a metrics recorder was already installed; /api/metrics is empty");
+            }
+            handle
+        })
+        .clone()
+}
+
+/// Opens the rig and the data directory, binds and serves in the background. Must run inside
+/// a multi-threaded tokio runtime.
+pub async fn start(opts: ServeOptions) -> Result<RunningDaemon, DaemonError> {
+    let data_err = |reason: String| DaemonError::Data {
+        path: opts.data.display().to_string(),
+        reason,
+    };
+    for dir in [
+        opts.data.clone(),
+        opts.data.join("runs"),
+        opts.data.join("scripts"),
+    ] {
+        std::fs::create_dir_all(&dir)
+            .map_err(|e| data_err(format!("cannot create {}: {e}", dir.display())))?;
+    }
+    let (tokens, tokens_path, tokens_created) =
+        Tokens::load_or_create(&opts.data).map_err(DaemonError::Tokens)?;
+    let rig_source = RigSource::load(opts.rig.as_deref())?;
+    let rig = Rig::open_with(
+        rig_source.spec.clone(),
+        RigClock::starting_at(0.0),
+        opts.seed,
+        opts.emulation.as_ref(),
+    )?;
+    let daemon = Daemon {
+        rig,
+        rig_source,
+        data_dir: opts.data.clone(),
+        scripts_dir: opts.scripts.clone(),
+        seed: opts.seed,
+        emulation: opts.emulation.clone(),
+        tokens,
+        hub: events::EventHub::new(),
+        runs: runs::RunManager::default(),
+        estop: estop::EStop::default(),
+        metrics: metrics_handle(),
+        manual: tokio::sync::Mutex::new(()),
+    };
+    let state = AppState(Arc::new(daemon));
+    let listener = tokio::net::TcpListener::bind(opts.listen)
+        .await
+        .map_err(|e| DaemonError::Listen {
+            addr: opts.listen,
+            reason: e.to_string(),
+        })?;
+    let addr = listener
+        .local_addr()
+        .map_err(|e| DaemonError::Io(e.to_string()))?;
+    let app = router(state.clone());
+    let (tx, rx) = oneshot::channel::<()>();
+    let server = tokio::spawn(async move {
+        let served = axum::serve(listener, app)
+            .with_graceful_shutdown(async {
+                let _ = rx.await;
+            })
+            .await;
+        if let Err(e) = served {
+            tracing::error!("the HTTP server stopped: {e}");
+        }
+    });
+    Ok(RunningDaemon {
+        addr,
+        state,
+        tokens_path,
+        tokens_created,
+        shutdown: Some(tx),
+        server,
+    })
+}
+
+/// The whole HTTP surface: the API (behind the token check and the body limit), the OpenAPI
+/// document and Swagger UI, the dashboard, and a JSON 404 for everything else.
+pub fn router(state: AppState) -> Router {
+    let (api, openapi) = api::routes().split_for_parts();
+    let api = api
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            auth::require_token,
+        ))
+        .layer(DefaultBodyLimit::max(MAX_BODY_BYTES));
+    Router::new()
+        .merge(api)
+        .merge(web::routes())
+        .with_state(state)
+        .merge(SwaggerUi::new("/docs").url("/openapi.json", openapi))
+        .fallback(not_found)
+}
+
+async fn not_found(uri: Uri) -> impl IntoResponse {
+    ApiError::new(StatusCode::NOT_FOUND, format!("no route {}", uri.path()))
+        .hint("the API is under /api/ and described at /openapi.json (Swagger UI at /docs/)")
+}
+
+/// `stagehand serve`: runs the daemon until Ctrl-C or SIGTERM, then aborts any run and leaves
+/// the rig in its safe state.
+pub fn serve(opts: ServeOptions) -> Result<(), DaemonError> {
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| DaemonError::Io(format!("cannot start the runtime: {e}")))?;
+    runtime.block_on(async move {
+        let daemon = start(opts).await?;
+        let addr = daemon.addr;
+        eprintln!(
+            "stagehand daemon on rig `{}`",
+            daemon.state.rig_source.spec.rig.name
+        );
+        eprintln!("  dashboard:  http://{addr}/");
+        eprintln!("  API:        http://{addr}/api/  (OpenAPI: /openapi.json, Swagger UI: /docs/)");
+        eprintln!(
+            "  tokens:     {}{}",
+            daemon.tokens_path.display(),
+            if daemon.tokens_created {
+                " (created now; mode 0600)"
+            } else {
+                ""
+            }
+        );
+        shutdown_signal().await;
+        eprintln!("stopping: aborting any run, switching lamps and laser off, stopping axes…");
+        daemon.shutdown().await;
+        Ok(())
+    })
+}
+
+async fn shutdown_signal() {
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => {}
+        _ = term => {}
+    }
+}
