@@ -13,6 +13,7 @@ pub mod device_state;
 pub mod error;
 pub mod estop;
 pub mod events;
+pub mod frame_index;
 pub mod runs;
 pub mod state;
 mod web;

@@ -15,6 +15,11 @@ pub struct RunState {
 }
 
 impl RunManager {
+    /// True while a run is executing (manual device commands are refused then).
+    pub fn is_active(&self) -> bool {
+        false
+    }
+
     /// The active run, if any.
     pub fn snapshot(&self) -> Option<RunState> {
         None
