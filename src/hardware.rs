@@ -13,6 +13,7 @@ use stagehand_devices::cart::CartHandle;
 use stagehand_devices::error::DeviceResult;
 use stagehand_devices::grbl::{GrblAxis, GrblController, GrblLaser};
 use stagehand_devices::hid_relay::{HidRelayBank, HidTransport};
+use stagehand_devices::interlock::Interlock;
 use stagehand_devices::ir_cart::IrBridgeCart;
 use stagehand_devices::laser::LaserHandle;
 use stagehand_devices::relay_serial::{NumatoBoard, RelaySerialBank};
@@ -62,6 +63,9 @@ impl Emulation {
 #[derive(Default)]
 pub struct Emulators {
     pub by_port: BTreeMap<String, EmulatorHandle>,
+    /// The locks on the rig's real ports (none when simulated or emulated): held as long as
+    /// the rig lives, so no other process opens its devices (see [`crate::port_lock`]).
+    pub port_locks: Vec<crate::port_lock::PortLock>,
 }
 
 /// Every device handle of a rig.
@@ -118,13 +122,18 @@ fn world_of(world: &Option<Arc<World>>) -> Result<&Arc<World>, OpenError> {
         .ok_or_else(|| OpenError::Simulator("the simulated world is missing".into()))
 }
 
-/// Opens every device of `spec`. Must run inside a tokio runtime.
+/// Opens every device of `spec`; the laser watches `interlock`. Must run inside a tokio
+/// runtime.
 pub(crate) fn open_devices(
     spec: &Arc<RigSpec>,
     world: &Option<Arc<World>>,
     emulation: Option<&Emulation>,
+    interlock: &Interlock,
 ) -> Result<Devices, OpenError> {
     let mut emulators = Emulators::default();
+    if emulation.is_none() {
+        emulators.port_locks = lock_real_ports(spec)?;
+    }
     // The path each rig port is reached at: itself, or its emulator's link.
     let mut paths: BTreeMap<String, String> = BTreeMap::new();
     let mut emulate_port = |port: &str, start: &StartEmulator| -> Result<String, OpenError> {
@@ -249,7 +258,11 @@ pub(crate) fn open_devices(
                     .get(&port_of(&l.id, &l.port)?)
                     .cloned()
                     .ok_or_else(|| missing_controller(&l.id))?;
-                LaserHandle::spawn(l.clone(), GrblLaser::new(ctrl, &l.id))
+                LaserHandle::spawn_with_interlock(
+                    l.clone(),
+                    GrblLaser::new(ctrl, &l.id),
+                    interlock.watch(),
+                )
             }
             Backend::Switch => {
                 let bank_id = l.bank.clone().unwrap_or_default();
@@ -260,12 +273,17 @@ pub(crate) fn open_devices(
                         device: l.id.clone(),
                         message: format!("no switch bank `{bank_id}`"),
                     })?;
-                LaserHandle::spawn(
+                LaserHandle::spawn_with_interlock(
                     l.clone(),
                     SwitchLaser::new(&l.id, bank, l.channel.unwrap_or(0)),
+                    interlock.watch(),
                 )
             }
-            _ => LaserHandle::spawn(l.clone(), SimLaser::new(world_of(world)?.clone())),
+            _ => LaserHandle::spawn_with_interlock(
+                l.clone(),
+                SimLaser::new(world_of(world)?.clone()),
+                interlock.watch(),
+            ),
         }),
     };
 
@@ -339,6 +357,44 @@ pub(crate) fn open_devices(
         cart,
         emulators,
     })
+}
+
+/// Locks every real port of the rig before any is opened (see [`crate::port_lock`]): serial
+/// ports, HID relay boards (by path or serial number; the first board when unnamed) and real
+/// cameras (by port or backend). The CLI also calls it (and drops the locks) before creating a
+/// run directory, so a rig the daemon holds is refused before anything is written.
+pub(crate) fn lock_real_ports(
+    spec: &RigSpec,
+) -> Result<Vec<crate::port_lock::PortLock>, OpenError> {
+    let named = |backend: Backend, port: &Option<String>, what: &str| {
+        port.clone()
+            .unwrap_or_else(|| format!("{what}:{backend:?}:first").to_lowercase())
+    };
+    let mut ports = std::collections::BTreeSet::new();
+    let serial = |b: Backend| matches!(b, Backend::Grbl | Backend::RelaySerial | Backend::IrBridge);
+    for a in spec.axes.iter().filter(|a| serial(a.backend)) {
+        ports.insert(port_of(&a.id, &a.port)?);
+    }
+    for b in &spec.switch_banks {
+        match b.backend {
+            Backend::HidRelay => ports.insert(named(b.backend, &b.port, "hid")),
+            bk if serial(bk) => ports.insert(port_of(&b.id, &b.port)?),
+            _ => false,
+        };
+    }
+    for l in spec.laser.iter().filter(|l| serial(l.backend)) {
+        ports.insert(port_of(&l.id, &l.port)?);
+    }
+    for c in spec.cart.iter().filter(|c| serial(c.backend)) {
+        ports.insert(port_of(&c.id, &c.port)?);
+    }
+    for c in spec.cameras.iter().filter(|c| c.backend != Backend::Sim) {
+        ports.insert(named(c.backend, &c.port, "camera"));
+    }
+    ports
+        .iter()
+        .map(|p| crate::port_lock::lock(p).map_err(OpenError::from))
+        .collect()
 }
 
 /// A camera: simulated (also every camera of an emulated rig: the world renders its frames),

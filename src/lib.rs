@@ -13,6 +13,7 @@ pub mod estimate;
 pub mod executor;
 pub mod hardware;
 pub mod plan;
+pub mod port_lock;
 pub mod rig;
 pub mod script;
 pub mod session;

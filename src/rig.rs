@@ -8,6 +8,7 @@ use stagehand_devices::axis::AxisHandle;
 use stagehand_devices::camera::CameraHandle;
 use stagehand_devices::cart::CartHandle;
 use stagehand_devices::clock::RigClock;
+use stagehand_devices::interlock::Interlock;
 use stagehand_devices::laser::LaserHandle;
 use stagehand_devices::rig::{
     BUILTIN_LIGHTSTAGE, BUILTIN_REFLECTOMETER, Backend, RigError, RigSpec, parse_rig,
@@ -17,7 +18,7 @@ use stagehand_devices::trigger::TriggerHandle;
 use stagehand_devices::{DeviceError, DeviceResult};
 use stagehand_simulator::World;
 
-use crate::hardware::{Emulation, Emulators, needs_world, open_devices};
+use crate::hardware::{Emulation, Emulators, needs_real_time, needs_world, open_devices};
 
 /// A rig description together with the text it was read from (stored in every run).
 #[derive(Debug, Clone)]
@@ -75,6 +76,9 @@ pub struct Rig {
     pub trigger: Option<TriggerHandle>,
     pub laser: Option<LaserHandle>,
     pub cart: Option<CartHandle>,
+    /// The laser interlock (door switch): simulated on simulated and emulated rigs, "not
+    /// fitted" (always closed) on real rigs, which have no interlock wiring.
+    pub interlock: Interlock,
     /// The simulated world, when the rig is simulated or emulated.
     pub world: Option<Arc<World>>,
     /// The firmware emulators standing in for the ports (emulated rigs only).
@@ -98,6 +102,9 @@ pub enum OpenError {
     Device(Box<DeviceError>),
     #[error("simulator: {0}")]
     Simulator(String),
+    /// A real port is held by another process (the daemon, or another `run`).
+    #[error("{0}")]
+    PortLock(#[from] crate::port_lock::PortLockError),
 }
 
 impl Rig {
@@ -124,7 +131,12 @@ impl Rig {
         } else {
             None
         };
-        let devices = open_devices(&spec, &world, emulation)?;
+        let interlock = if emulation.is_some() || !needs_real_time(&spec) {
+            Interlock::simulated()
+        } else {
+            Interlock::not_fitted()
+        };
+        let devices = open_devices(&spec, &world, emulation, &interlock)?;
         let lamps = spec
             .lamps
             .iter()
@@ -148,6 +160,7 @@ impl Rig {
             trigger: devices.trigger,
             laser: devices.laser,
             cart: devices.cart,
+            interlock,
             world,
             emulators: Arc::new(devices.emulators),
         })

@@ -223,27 +223,38 @@ pub fn reopen(run_dir: &Path) -> Result<Reopened, SessionError> {
 }
 
 /// Finishes an interrupted run: re-establishes the device state and runs the steps that are
-/// not durable yet. A finished run is left as it is.
+/// not durable yet. A finished run is left as it is. Opens the run's rig with its clock
+/// continuing the run's rig time.
 pub async fn resume(
     reopened: Reopened,
     wiring: Wiring,
     emulation: Option<&Emulation>,
 ) -> Result<Summary, SessionError> {
+    let rig_time = reopened.store.last_rig_time_s()?;
+    let rig = Rig::open_with(
+        reopened.rig.spec.clone(),
+        RigClock::starting_at(rig_time),
+        reopened.manifest.seed,
+        emulation,
+    )?;
+    resume_on(reopened, rig, wiring).await
+}
+
+/// [`resume`] on a rig that is already open (the daemon's): the caller makes sure `rig` is
+/// the run's rig. Its clock keeps its own time, so the resumed steps record the rig's time.
+pub async fn resume_on(
+    reopened: Reopened,
+    rig: Rig,
+    wiring: Wiring,
+) -> Result<Summary, SessionError> {
     let Reopened {
         store,
         manifest,
         plan,
-        rig,
+        rig: _,
     } = reopened;
     let done = store.done_steps()?;
-    let rig_time = store.last_rig_time_s()?;
     store.set_status(RunStatus::Running, None)?;
-    let rig = Rig::open_with(
-        rig.spec,
-        RigClock::starting_at(rig_time),
-        manifest.seed,
-        emulation,
-    )?;
     execute(
         rig,
         Arc::new(plan),

@@ -196,7 +196,7 @@ async fn run_actor<D: AxisDriver>(
                             Some(stop_reply) = stop_rx.recv() => {
                                 let r = driver.stop().await;
                                 let _ = stop_reply.send(r.clone());
-                                status.send_modify(|s| s.homed = false);
+                                publish(&status, &r, Some(false), false);
                                 r.and(Err(DeviceError::Other { device: spec.id.clone(), message: "homing interrupted by stop; home the axis again".into() }))
                             }
                         };
@@ -211,6 +211,8 @@ async fn run_actor<D: AxisDriver>(
                             Some(stop_reply) = stop_rx.recv() => {
                                 let r = driver.stop().await;
                                 let _ = stop_reply.send(r.clone());
+                                // Where it stopped (the error below carries no position).
+                                publish(&status, &r, None, false);
                                 r.and(Err(DeviceError::Other { device: spec.id.clone(), message: "move interrupted by stop".into() }))
                             }
                         };
@@ -281,4 +283,53 @@ pub fn planned_move_s(spec: &AxisSpec, from_deg: f64, to_deg: f64) -> f64 {
 /// The trapezoid of a single leg (no backlash) — used by simulated drivers.
 pub fn leg(spec: &AxisSpec, from_deg: f64, to_deg: f64) -> Trapezoid {
     Trapezoid::plan(from_deg, to_deg, spec.kinematics())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rig::{BUILTIN_LIGHTSTAGE, parse_rig};
+
+    /// Moves take ten seconds; a stop reports 42°.
+    struct Slow;
+
+    impl AxisDriver for Slow {
+        async fn home(&mut self) -> DeviceResult<f64> {
+            Ok(0.0)
+        }
+        async fn move_to(&mut self, target_deg: f64) -> DeviceResult<f64> {
+            tokio::time::sleep(std::time::Duration::from_secs(10)).await;
+            Ok(target_deg)
+        }
+        async fn stop(&mut self) -> DeviceResult<f64> {
+            Ok(42.0)
+        }
+        async fn position(&mut self) -> DeviceResult<f64> {
+            Ok(0.0)
+        }
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_stop_interrupts_a_move_and_publishes_where_the_axis_stopped() {
+        let spec = parse_rig(BUILTIN_LIGHTSTAGE, "lightstage.toml")
+            .unwrap()
+            .axes
+            .into_iter()
+            .find(|a| a.id == "turntable")
+            .unwrap();
+        let axis = AxisHandle::spawn(spec, Slow);
+        axis.home().await.unwrap();
+        let mover = axis.clone();
+        let moving = tokio::spawn(async move { mover.move_to(300.0).await });
+        tokio::time::sleep(std::time::Duration::from_secs(1)).await;
+        assert!(axis.status().moving);
+        assert_eq!(axis.stop().await.unwrap(), 42.0);
+        assert!(
+            moving.await.unwrap().is_err(),
+            "the move reports the interruption"
+        );
+        let s = axis.status();
+        assert!(!s.moving);
+        assert_eq!(s.position_deg, 42.0, "the status says where it stopped");
+    }
 }

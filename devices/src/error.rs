@@ -38,6 +38,10 @@ pub enum DeviceError {
     },
     #[error("{device}: laser is not armed; arm it before switching it on")]
     LaserNotArmed { device: String },
+    #[error(
+        "{device}: the laser interlock is open (the enclosure door switch); close the door before switching the laser on"
+    )]
+    InterlockOpen { device: String },
     #[error("{device}: colour {colour_nm} nm is not fitted; fitted colours: {fitted:?}")]
     LaserColour {
         device: String,
@@ -133,6 +137,7 @@ impl DeviceError {
             | DeviceError::Gone { device }
             | DeviceError::NoSuchChannel { device, .. }
             | DeviceError::LaserNotArmed { device }
+            | DeviceError::InterlockOpen { device }
             | DeviceError::LaserColour { device, .. }
             | DeviceError::Exposure { device, .. }
             | DeviceError::Gain { device, .. }
@@ -161,6 +166,7 @@ impl DeviceError {
             | DeviceError::Gone { device }
             | DeviceError::NoSuchChannel { device, .. }
             | DeviceError::LaserNotArmed { device }
+            | DeviceError::InterlockOpen { device }
             | DeviceError::LaserColour { device, .. }
             | DeviceError::Exposure { device, .. }
             | DeviceError::Gain { device, .. }

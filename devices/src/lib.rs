@@ -14,6 +14,7 @@ pub mod frame;
 pub mod grbl;
 pub mod ground_truth;
 pub mod hid_relay;
+pub mod interlock;
 pub mod ir_cart;
 pub mod laser;
 pub mod lens;

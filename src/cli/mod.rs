@@ -3,6 +3,7 @@
 mod devices;
 mod operator;
 mod progress;
+mod remote;
 mod sim;
 
 use std::path::PathBuf;
@@ -38,9 +39,9 @@ enum Command {
         /// Directory that receives the run directory.
         #[arg(long, default_value = "runs")]
         out: PathBuf,
-        /// Seed of the simulated sensor noise.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
+        /// Seed of the simulated sensor noise (default 1; with --remote, the daemon's).
+        #[arg(long)]
+        seed: Option<u64>,
         /// Override a script parameter: NAME=VALUE (repeatable).
         #[arg(long = "set", value_name = "NAME=VALUE")]
         set: Vec<String>,
@@ -54,6 +55,14 @@ enum Command {
         /// of the rig's ports, and render the cameras from the simulated world.
         #[arg(long)]
         emulate: bool,
+        /// Run on the daemon at URL (`stagehand serve`), which owns the rig: upload the
+        /// script, start the run there and follow it here.
+        #[arg(long, value_name = "URL", conflicts_with_all = ["rig", "out", "reserve_mib", "emulate"])]
+        remote: Option<String>,
+        /// The daemon's operator token for --remote (default: $STAGEHAND_TOKEN; it is in
+        /// tokens.json in the daemon's data directory).
+        #[arg(long, requires = "remote")]
+        token: Option<String>,
     },
     /// Dry run: build and check the plan, estimate time, frames and bytes. Nothing moves.
     Plan {
@@ -215,7 +224,20 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
             yes,
             reserve_mib,
             emulate,
+            remote,
+            token,
         } => {
+            if let Some(url) = remote {
+                return Ok(remote::run(remote::RemoteRun {
+                    url,
+                    token,
+                    script,
+                    set,
+                    seed,
+                    yes,
+                }));
+            }
+            let seed = seed.unwrap_or(1);
             let rig = RigSource::load(rig.as_deref())?;
             let script = ScriptSource::from_file(&script)?;
             let prepared = session::prepare(script, &overrides(&set)?, rig)?;
@@ -224,6 +246,11 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
                     "{}",
                     session::format_violations(&prepared.script.name, std::slice::from_ref(w))
                 );
+            }
+            if !emulate {
+                // Refused before a run directory exists when another process (the daemon)
+                // holds the rig's ports; the rig takes the locks again when it opens.
+                drop(crate::hardware::lock_real_ports(&prepared.rig.spec)?);
             }
             let runtime =
                 session::runtime_for(&prepared.rig).map_err(|e| SessionError::Io(e.to_string()))?;

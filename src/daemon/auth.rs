@@ -1,7 +1,8 @@
 //! Bearer tokens and roles. Two tokens are created on the daemon's first start and stored in
 //! `<data>/tokens.json` with mode 0600: one for operators (may change the rig), one read-only.
 //! Tokens are compared in constant time. `GET`/`HEAD` requests need any token; every other
-//! method needs the operator token. Browsers' `EventSource` and `<img>` cannot send headers, so
+//! method needs the operator token, except `POST /api/estop`, which any token may press.
+//! Browsers' `EventSource` and `<img>` cannot send headers, so
 //! `GET` requests may carry the token as `?access_token=` instead.
 
 use std::io::Write;
@@ -9,7 +10,7 @@ use std::os::unix::fs::{OpenOptionsExt, PermissionsExt};
 use std::path::{Path, PathBuf};
 
 use axum::extract::{Request, State};
-use axum::http::{Method, StatusCode, header};
+use axum::http::{Method, StatusCode, Uri, header};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use serde::{Deserialize, Serialize};
@@ -34,6 +35,9 @@ pub struct Tokens {
     pub operator: String,
     pub read_only: String,
 }
+
+/// The e-stop route, which every valid token may use (resetting it needs the operator).
+pub const ESTOP_PATH: &str = "/api/estop";
 
 /// The file name of the tokens inside the data directory.
 pub const TOKENS_FILE: &str = "tokens.json";
@@ -142,7 +146,9 @@ pub async fn require_token(State(app): State<AppState>, mut req: Request, next: 
         return unauthorized("the bearer token is not valid");
     };
     let reads = matches!(*req.method(), Method::GET | Method::HEAD);
-    if !reads && role != Role::Operator {
+    // Anyone allowed to watch the rig may stop it: the e-stop only makes things safe.
+    let estop = req.method() == Method::POST && req.uri().path() == ESTOP_PATH;
+    if !reads && !estop && role != Role::Operator {
         return ApiError::new(
             StatusCode::FORBIDDEN,
             format!(
@@ -155,7 +161,38 @@ pub async fn require_token(State(app): State<AppState>, mut req: Request, next: 
         .into_response();
     }
     req.extensions_mut().insert(role);
+    strip_access_token(&mut req);
     next.run(req).await
+}
+
+/// Drops `access_token` from the query string once checked, so handlers whose query
+/// parameters refuse unknown fields (`<img src=…/thumbnail?size=256&access_token=…>`) never
+/// see it.
+fn strip_access_token(req: &mut Request) {
+    let Some(query) = req.uri().query() else {
+        return;
+    };
+    if !query.split('&').any(|kv| kv.starts_with("access_token=")) {
+        return;
+    }
+    let rest: Vec<&str> = query
+        .split('&')
+        .filter(|kv| !kv.is_empty() && !kv.starts_with("access_token="))
+        .collect();
+    let path = req.uri().path();
+    let path_and_query = if rest.is_empty() {
+        path.to_string()
+    } else {
+        format!("{path}?{}", rest.join("&"))
+    };
+    let mut parts = req.uri().clone().into_parts();
+    let Ok(pq) = path_and_query.parse() else {
+        return;
+    };
+    parts.path_and_query = Some(pq);
+    if let Ok(uri) = Uri::from_parts(parts) {
+        *req.uri_mut() = uri;
+    }
 }
 
 fn unauthorized(what: &str) -> Response {

@@ -139,3 +139,53 @@ pub struct ApiPath<T>(pub T);
 #[derive(Debug, axum::extract::FromRequestParts)]
 #[from_request(via(axum::extract::Query), rejection(ApiError))]
 pub struct ApiQuery<T>(pub T);
+
+/// Middleware: an error response that is not JSON yet (axum's own 405, a body-limit 413 from
+/// a raw-body extractor, …) gets the same `{"error", "hint"}` body as every other error, so a
+/// client can always parse what went wrong.
+pub async fn json_errors(req: axum::extract::Request, next: axum::middleware::Next) -> Response {
+    let method = req.method().clone();
+    let path = req.uri().path().to_string();
+    let response = next.run(req).await;
+    let status = response.status();
+    let is_json = response
+        .headers()
+        .get(axum::http::header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.starts_with("application/json"));
+    if !(status.is_client_error() || status.is_server_error()) || is_json {
+        return response;
+    }
+    let (parts, body) = response.into_parts();
+    let text = axum::body::to_bytes(body, 4096)
+        .await
+        .map(|b| String::from_utf8_lossy(&b).trim().to_string())
+        .unwrap_or_default();
+    let error = if text.is_empty() {
+        status
+            .canonical_reason()
+            .unwrap_or("request refused")
+            .to_string()
+    } else {
+        text
+    };
+    let mut e = ApiError::new(status, format!("{method} {path}: {error}"));
+    e = match status {
+        StatusCode::METHOD_NOT_ALLOWED => {
+            e.hint("/openapi.json lists the methods each route takes")
+        }
+        StatusCode::PAYLOAD_TOO_LARGE => e.hint(format!(
+            "request bodies are limited to {} bytes",
+            super::MAX_BODY_BYTES
+        )),
+        _ => e,
+    };
+    let mut out = e.into_response();
+    // Keep headers such as `Allow` and `WWW-Authenticate`.
+    for (name, value) in parts.headers.iter() {
+        if name != axum::http::header::CONTENT_TYPE && name != axum::http::header::CONTENT_LENGTH {
+            out.headers_mut().insert(name.clone(), value.clone());
+        }
+    }
+    out
+}

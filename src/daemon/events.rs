@@ -36,6 +36,8 @@ pub struct HubEvent {
 /// The daemon's event hub.
 pub struct EventHub {
     tx: broadcast::Sender<HubEvent>,
+    /// Set when the daemon shuts down: live streams end so the server can stop.
+    closing: tokio::sync::watch::Sender<bool>,
     seq: AtomicU64,
     recent: Mutex<VecDeque<HubEvent>>,
 }
@@ -50,6 +52,7 @@ impl EventHub {
     pub fn new() -> Self {
         Self {
             tx: broadcast::channel(CHANNEL_CAPACITY).0,
+            closing: tokio::sync::watch::channel(false).0,
             seq: AtomicU64::new(0),
             recent: Mutex::new(VecDeque::with_capacity(RECENT)),
         }
@@ -86,6 +89,17 @@ impl EventHub {
     pub fn recent(&self) -> Vec<HubEvent> {
         let recent = self.recent.lock().unwrap_or_else(|p| p.into_inner());
         recent.iter().cloned().collect()
+    }
+
+    /// Ends every live stream (daemon shutdown).
+    pub fn close(&self) {
+        self.closing.send_replace(true);
+    }
+
+    /// Resolves once [`EventHub::close`] was called.
+    pub async fn closed(&self) {
+        let mut rx = self.closing.subscribe();
+        let _ = rx.wait_for(|closing| *closing).await;
     }
 
     /// Number of live subscribers (SSE clients and internal listeners).

@@ -14,8 +14,15 @@ pub mod error;
 pub mod estop;
 pub mod events;
 pub mod frame_index;
+pub mod image_convert;
+pub mod jog_ws;
+pub mod manual;
+pub mod operator;
+pub mod run_start;
 pub mod runs;
+pub mod scripts;
 pub mod state;
+pub mod stored_runs;
 mod web;
 
 use std::net::SocketAddr;
@@ -36,6 +43,9 @@ use self::error::ApiError;
 use self::state::{AppState, Daemon};
 use crate::hardware::Emulation;
 use crate::rig::{Rig, RigSource};
+
+/// How long shutdown waits for open requests and the run to wind down.
+const SHUTDOWN_GRACE_S: u64 = 5;
 
 /// Largest request body the API accepts (scripts are text; nothing else is big).
 pub const MAX_BODY_BYTES: usize = 1 << 20;
@@ -86,13 +96,29 @@ pub struct RunningDaemon {
 
 impl RunningDaemon {
     /// Stops serving: aborts any run, puts the rig in its safe state, closes the listener.
+    /// The rig is made safe first, before any client is waited for.
     pub async fn shutdown(mut self) {
         self.state.runs.abort();
+        self.state.estop.latch();
+        if let Err(e) = self.state.rig.safe_state().await {
+            tracing::error!("shutdown: safe state: {e}");
+        }
+        self.state.hub.close();
         if let Some(tx) = self.shutdown.take() {
             let _ = tx.send(());
         }
-        let _ = self.server.await;
-        self.state.runs.wait_idle().await;
+        let grace = std::time::Duration::from_secs(SHUTDOWN_GRACE_S);
+        if tokio::time::timeout(grace, &mut self.server).await.is_err() {
+            tracing::warn!("shutdown: clients still connected after {SHUTDOWN_GRACE_S} s; closing");
+            self.server.abort();
+        }
+        if tokio::time::timeout(grace, self.state.runs.wait_idle())
+            .await
+            .is_err()
+        {
+            tracing::warn!("shutdown: the run did not wind down within {SHUTDOWN_GRACE_S} s");
+        }
+        // The run's own abort path ends in the safe state too; make sure of it.
         if let Err(e) = self.state.rig.safe_state().await {
             tracing::error!("shutdown: safe state: {e}");
         }
@@ -100,7 +126,8 @@ impl RunningDaemon {
 }
 
 /// The process's metrics recorder (installed once; every daemon in the process shares it).
-fn metrics_handle() -> PrometheusHandle {
+/// Public so a test can install it before running the executor in-process.
+pub fn metrics_handle() -> PrometheusHandle {
     static HANDLE: OnceLock<PrometheusHandle> = OnceLock::new();
     HANDLE
         .get_or_init(|| {
@@ -109,6 +136,7 @@ fn metrics_handle() -> PrometheusHandle {
             if metrics::set_global_recorder(recorder).is_err() {
                 tracing::warn!("a metrics recorder was already installed; /api/metrics is empty");
             }
+            crate::executor::describe_metrics();
             handle
         })
         .clone()
@@ -132,9 +160,17 @@ pub async fn start(opts: ServeOptions) -> Result<RunningDaemon, DaemonError> {
     let (tokens, tokens_path, tokens_created) =
         Tokens::load_or_create(&opts.data).map_err(DaemonError::Tokens)?;
     let rig_source = RigSource::load(opts.rig.as_deref())?;
+    // The rig clock continues from the latest rig time of the stored runs, so a run resumed
+    // after a daemon restart still records increasing rig times.
+    let rig_time_s = stored_runs::list(&opts.data.join("runs"))
+        .unwrap_or_default()
+        .iter()
+        .map(|r| r.rig_time_s)
+        .filter(|t| t.is_finite())
+        .fold(0.0_f64, f64::max);
     let rig = Rig::open_with(
         rig_source.spec.clone(),
-        RigClock::starting_at(0.0),
+        RigClock::starting_at(rig_time_s),
         opts.seed,
         opts.emulation.as_ref(),
     )?;
@@ -153,6 +189,7 @@ pub async fn start(opts: ServeOptions) -> Result<RunningDaemon, DaemonError> {
         manual: tokio::sync::Mutex::new(()),
     };
     let state = AppState(Arc::new(daemon));
+    device_state::spawn_device_watch(state.clone());
     let listener = tokio::net::TcpListener::bind(opts.listen)
         .await
         .map_err(|e| DaemonError::Listen {
@@ -200,6 +237,7 @@ pub fn router(state: AppState) -> Router {
         .with_state(state)
         .merge(SwaggerUi::new("/docs").url("/openapi.json", openapi))
         .fallback(not_found)
+        .layer(axum::middleware::from_fn(error::json_errors))
 }
 
 async fn not_found(uri: Uri) -> impl IntoResponse {

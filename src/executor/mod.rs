@@ -13,6 +13,7 @@ mod capture;
 mod control;
 mod establish;
 mod events;
+mod telemetry;
 mod writer;
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -23,6 +24,7 @@ use tokio::sync::broadcast;
 
 pub use control::{Answer, AutoConfirm, Control, Operator, RunControl};
 pub use events::Event;
+pub use telemetry::describe_metrics;
 pub use writer::WriterHandle;
 
 use crate::estimate::{Estimate, RigState, estimate_from, state_before};
@@ -89,6 +91,15 @@ struct Live {
 }
 
 impl Execution {
+    /// Every safety violation the simulated world recorded so far (none on real hardware).
+    fn world_violations(&self) -> Vec<String> {
+        self.rig
+            .world
+            .as_ref()
+            .map(|w| w.violations())
+            .unwrap_or_default()
+    }
+
     fn emit(&self, e: Event) {
         // No subscriber is fine: events are advisory.
         let _ = self.events.send(e);
@@ -104,6 +115,8 @@ impl Execution {
         let start_state = state_before(&self.plan, &self.rig.spec, first);
         let est: Estimate = estimate_from(&self.plan, &self.rig.spec, first, &start_state);
         let rig_start = self.rig.clock.now_s();
+        // The simulated world may outlive the run (the daemon's rig): report only this run's.
+        let violations_before = self.world_violations().len();
         self.emit(Event::RunStarted {
             total_steps: steps_total,
             steps_to_do: steps_total - self.done.len().min(steps_total),
@@ -124,12 +137,11 @@ impl Execution {
             (Err(e), _) => (RunStatus::Failed, Some(e.to_string())),
         };
         let finished = self.writer.finish(status, message.clone()).await;
-        let violations = self
-            .rig
-            .world
-            .as_ref()
-            .map(|w| w.violations())
-            .unwrap_or_default();
+        let violations: Vec<String> = self
+            .world_violations()
+            .into_iter()
+            .skip(violations_before)
+            .collect();
         let rig_time_s = self.rig.clock.now_s();
         let summary = Summary {
             status: status_name(status).into(),
@@ -141,6 +153,7 @@ impl Execution {
             estimated_rig_time_s: est.rig_time_s,
             safety_violations: violations,
         };
+        telemetry::run_finished(&summary.status);
         self.emit(Event::RunFinished {
             status: summary.status.clone(),
             message: message.clone(),
@@ -183,12 +196,15 @@ impl Execution {
             .unwrap_or((first, SourcePos::default()));
         establish::establish(&self.rig, &mut live, start_state)
             .await
-            .map_err(|source| RunError::Device {
-                script: self.script_name.clone(),
-                step: establish_at.0,
-                kind: "establish",
-                at: establish_at.1,
-                source: Box::new(source),
+            .map_err(|source| {
+                telemetry::device_error(&source);
+                RunError::Device {
+                    script: self.script_name.clone(),
+                    step: establish_at.0,
+                    kind: "establish",
+                    at: establish_at.1,
+                    source: Box::new(source),
+                }
             })?;
         let rig_t0 = self.rig.clock.now_s();
         let est_t0 = if first == 0 {
@@ -211,6 +227,7 @@ impl Execution {
             });
             let rig_start = self.rig.clock.now_s();
             let wall_start = wall_now();
+            let wall_timer = std::time::Instant::now();
             let outcome = self.run_step_recovering(step, &mut live).await;
             let captures = outcome.map_err(|e| match e {
                 StepFailure::Device(source) => RunError::Device {
@@ -232,6 +249,8 @@ impl Execution {
                 rig_time_end_s: rig_end,
                 wall_time_unix_s: wall_start,
             };
+            // The step's own time (devices, capture), not the wait for the writer below.
+            telemetry::step_done(step.action.kind(), wall_timer.elapsed().as_secs_f64());
             self.writer.submit(record, captures).await?;
             // ETA: remaining estimate, scaled by how the run has tracked the estimate so far.
             let est_end = est.step_end_s.get(step.index).copied().unwrap_or(0.0);
@@ -272,6 +291,9 @@ impl Execution {
                 r = self.run_step(step, live) => r,
                 () = self.control.aborted() => return Err(StepFailure::Aborted),
             };
+            if let Err(StepFailure::Device(e)) = &outcome {
+                telemetry::device_error(e);
+            }
             let error = match outcome {
                 Err(StepFailure::Device(e)) if e.is_recoverable() && faults < MAX_STEP_FAULTS => e,
                 other => return other,
@@ -288,6 +310,7 @@ impl Execution {
                 r = self.recover(live, &before, &error) => r?,
                 () = self.control.aborted() => return Err(StepFailure::Aborted),
             }
+            telemetry::reconnected(error.device());
             self.emit(Event::Recovered {
                 step: step.index,
                 device: error.device().to_string(),
@@ -312,10 +335,14 @@ impl Execution {
             match establish::establish(&self.rig, live, state).await {
                 Ok(()) => return Ok(()),
                 Err(e) if e.is_recoverable() => {
+                    telemetry::device_error(&e);
                     tracing::warn!("recovery attempt {}: {e}", attempt + 1);
                     last = e;
                 }
-                Err(e) => return Err(StepFailure::Device(e)),
+                Err(e) => {
+                    telemetry::device_error(&e);
+                    return Err(StepFailure::Device(e));
+                }
             }
         }
         Err(StepFailure::Device(last))

@@ -165,6 +165,7 @@ fn writer_loop(
                 match write_batch(&mut store, batch, reserve_bytes) {
                     Ok(files) => {
                         frames_written += files.iter().sum::<usize>();
+                        super::telemetry::frames_written(files.iter().sum());
                         for (step, n) in steps.into_iter().zip(files) {
                             let _ = events.send(Event::StepDurable { step, files: n });
                         }

@@ -147,21 +147,23 @@ impl CameraDriver for SimCamera {
         self.world.begin_exposure(start, end);
         clock.sleep_s(end - clock.now_s()).await;
         let snapshot = self.world.snapshot_at(start);
-        let rendered = self
-            .world
-            .renderer()
-            .render(
-                &snapshot,
-                &id,
-                self.exposure_s,
-                self.gain,
-                self.noise_seed(trigger_id),
-            )
-            .map_err(|e| DeviceError::Other {
-                device: id.clone(),
-                message: e.to_string(),
-            })?;
-        let ground_truth = self.ground_truth(&snapshot)?;
+        let (rendered, ground_truth) = off_the_async_workers(|| {
+            let rendered = self
+                .world
+                .renderer()
+                .render(
+                    &snapshot,
+                    &id,
+                    self.exposure_s,
+                    self.gain,
+                    self.noise_seed(trigger_id),
+                )
+                .map_err(|e| DeviceError::Other {
+                    device: id.clone(),
+                    message: e.to_string(),
+                })?;
+            Ok::<_, DeviceError>((rendered, self.ground_truth(&snapshot)?))
+        })?;
         clock
             .sleep_s(end + self.spec.readout_s() - clock.now_s())
             .await;
@@ -178,5 +180,17 @@ impl CameraDriver for SimCamera {
             notes: rendered.notes,
             ground_truth,
         })
+    }
+}
+
+/// Runs a render (CPU-bound for up to a second) without starving other tasks: on a
+/// multi-threaded runtime (the daemon, real-time rigs) the worker hands its other tasks to a
+/// fresh worker first, so the HTTP API and the e-stop stay responsive; on the single-threaded
+/// virtual-clock runtime it simply runs.
+fn off_the_async_workers<T>(f: impl FnOnce() -> T) -> T {
+    use tokio::runtime::{Handle, RuntimeFlavor};
+    match Handle::try_current().map(|h| h.runtime_flavor()) {
+        Ok(RuntimeFlavor::MultiThread) => tokio::task::block_in_place(f),
+        _ => f(),
     }
 }

@@ -3,6 +3,7 @@
 use std::convert::Infallible;
 use std::time::Duration;
 
+use axum::Extension;
 use axum::extract::State;
 use axum::http::header;
 use axum::response::IntoResponse;
@@ -14,6 +15,7 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use crate::daemon::auth::Role;
 use crate::daemon::device_state::{self, DevicesState};
 use crate::daemon::error::ApiJson;
 use crate::daemon::events::HubEvent;
@@ -94,6 +96,7 @@ async fn events(State(app): State<AppState>) -> Sse<impl Stream<Item = Result<Ev
                 r = rx.recv() => r,
                 // The client went away while nothing happened: end now, not at the next event.
                 () = tx.closed() => return,
+                () = app.hub.closed() => return,
             };
             let event = match received {
                 Ok(e) => sse_event(&e),
@@ -158,8 +161,24 @@ async fn metrics_text(State(app): State<AppState>) -> impl IntoResponse {
     )
 }
 
+/// The role of the token this request carries.
+#[derive(Debug, Clone, Serialize, ToSchema)]
+pub struct WhoAmI {
+    pub role: Role,
+}
+
+/// Which role the caller's token has (the dashboard disables controls for `read_only`).
+#[utoipa::path(get, path = "/api/whoami", tag = "status",
+    responses((status = 200, body = WhoAmI), (status = 401, body = crate::daemon::error::ErrorBody)))]
+async fn whoami(role: Option<Extension<Role>>) -> ApiJson<WhoAmI> {
+    // The auth middleware always sets the role on /api/ routes.
+    let role = role.map(|Extension(r)| r).unwrap_or(Role::ReadOnly);
+    ApiJson(WhoAmI { role })
+}
+
 pub fn routes() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
+        .routes(routes!(whoami))
         .routes(routes!(get_status))
         .routes(routes!(recent_events))
         .routes(routes!(events))

@@ -1,0 +1,380 @@
+// End-to-end test of the dashboard in headless Debian Chromium, driven by playwright-core.
+//
+// Starts `stagehand serve` on the simulated rig (fresh data directory, port chosen by the
+// daemon), opens the dashboard with the operator token in the URL fragment, runs `quickstart`
+// from the page (answering its prompt), waits for 100 % and for every camera's thumbnail, then
+// jogs an axis, switches a lamp on, arms the laser through the confirmation dialog, presses
+// E-STOP and checks that the rig is safe; finally a read-only session sees the controls off.
+// Screenshots of every stage go to $SCREENSHOT_DIR (default target/e2e-screenshots).
+//
+// Environment: STAGEHAND_BIN (default target/debug/stagehand), SCREENSHOT_DIR, CHROMIUM
+// (default /usr/bin/chromium), E2E_FULL_RIG=1 to use the built-in rig's full-size cameras
+// instead of a copy with small cameras (rendering 1024×768 frames is slow on small CI boxes).
+
+import { spawn } from 'node:child_process';
+import fs from 'node:fs';
+import os from 'node:os';
+import path from 'node:path';
+import { fileURLToPath } from 'node:url';
+import { chromium } from 'playwright-core';
+
+const HERE = path.dirname(fileURLToPath(import.meta.url));
+const ROOT = path.resolve(HERE, '..', '..');
+const BIN = path.resolve(process.env.STAGEHAND_BIN || path.join(ROOT, 'target/debug/stagehand'));
+const SHOTS = path.resolve(process.env.SCREENSHOT_DIR || path.join(ROOT, 'target/e2e-screenshots'));
+const CHROMIUM = process.env.CHROMIUM || '/usr/bin/chromium';
+const FULL_RIG = process.env.E2E_FULL_RIG === '1';
+const RUN_TIMEOUT_MS = 300_000;
+const STEP_TIMEOUT_MS = 30_000;
+
+const t0 = Date.now();
+const secs = () => ((Date.now() - t0) / 1000).toFixed(1);
+const log = (msg) => console.log(`[e2e ${secs().padStart(6)} s] ${msg}`);
+
+class Failure extends Error {}
+
+let daemon = null;
+let daemonLog = '';
+let browser = null;
+let tmp = null;
+const pageErrors = [];
+
+/** Kills the daemon (SIGTERM, then SIGKILL) and waits for it. */
+async function stopDaemon() {
+  if (!daemon || daemon.exitCode !== null || daemon.signalCode !== null) return;
+  const exited = new Promise((resolve) => daemon.once('exit', resolve));
+  daemon.kill('SIGTERM');
+  const timer = setTimeout(() => daemon.kill('SIGKILL'), 10_000);
+  await exited;
+  clearTimeout(timer);
+}
+
+/** A copy of the built-in light stage with small cameras, so frames render fast. */
+function smallRig(dir) {
+  const src = path.join(ROOT, 'devices/rigs/lightstage.toml');
+  let text = fs.readFileSync(src, 'utf8');
+  text = text.replace(/^width = \d+$/gm, 'width = 320').replace(/^height = \d+$/gm, 'height = 240');
+  const file = path.join(dir, 'lightstage-small.toml');
+  fs.writeFileSync(file, text);
+  return file;
+}
+
+/** Starts the daemon on 127.0.0.1:0 and resolves to its base URL (read from its banner). */
+async function startDaemon() {
+  if (!fs.existsSync(BIN)) {
+    throw new Failure(`no stagehand binary at ${BIN}: run \`cargo build\` first or set STAGEHAND_BIN`);
+  }
+  const data = path.join(tmp, 'data');
+  const args = ['serve', '--data', data, '--listen', '127.0.0.1:0', '--scripts', path.join(ROOT, 'sequences')];
+  if (!FULL_RIG) args.push('--rig', smallRig(tmp));
+  log(`starting ${BIN} ${args.join(' ')}`);
+  daemon = spawn(BIN, args, { cwd: ROOT, stdio: ['ignore', 'pipe', 'pipe'], env: { ...process.env, RUST_LOG: process.env.RUST_LOG || 'info' } });
+  const url = await new Promise((resolve, reject) => {
+    const timer = setTimeout(() => reject(new Failure(`the daemon did not print its address within 60 s:\n${daemonLog}`)), 60_000);
+    const onData = (chunk) => {
+      daemonLog += chunk.toString();
+      const m = /dashboard:\s+(http:\/\/\S+?)\/?\s/.exec(daemonLog);
+      if (m) {
+        clearTimeout(timer);
+        resolve(m[1]);
+      }
+    };
+    daemon.stdout.on('data', onData);
+    daemon.stderr.on('data', onData);
+    daemon.once('exit', (code, sig) => {
+      clearTimeout(timer);
+      reject(new Failure(`the daemon exited early (code ${code}, signal ${sig}):\n${daemonLog}`));
+    });
+  });
+  // Keep collecting its output for the failure report.
+  daemon.removeAllListeners('exit');
+  const tokens = JSON.parse(fs.readFileSync(path.join(data, 'tokens.json'), 'utf8'));
+  return { url, tokens };
+}
+
+async function apiGet(base, token, p) {
+  const r = await fetch(base + p, { headers: { Authorization: `Bearer ${token}` } });
+  if (!r.ok) throw new Failure(`GET ${p}: ${r.status} ${await r.text()}`);
+  return r.json();
+}
+
+let shotNo = 0;
+async function shot(page, name) {
+  shotNo += 1;
+  const file = path.join(SHOTS, `${String(shotNo).padStart(2, '0')}-${name}.png`);
+  // Sticky elements land mid-page in a full-page shot of a scrolled page.
+  await page.evaluate(() => window.scrollTo(0, 0));
+  await page.screenshot({ path: file, fullPage: true });
+  log(`screenshot ${path.relative(ROOT, file)}`);
+  return file;
+}
+
+/** Fails if the page shows an error toast (the dashboard reports every API error that way). */
+async function noErrorToasts(page, stage) {
+  const errors = await page.locator('.toast-error').allInnerTexts();
+  if (errors.length) throw new Failure(`${stage}: the page shows an error:\n  ${errors.join('\n  ').replace(/\n/g, ' | ')}`);
+  if (pageErrors.length) throw new Failure(`${stage}: JavaScript error on the page: ${pageErrors.join('; ')}`);
+}
+
+async function stage(name, fn) {
+  const s = Date.now();
+  log(`▶ ${name}`);
+  try {
+    await fn();
+  } catch (e) {
+    e.stage = e.stage || name;
+    throw e;
+  }
+  log(`✓ ${name} (${((Date.now() - s) / 1000).toFixed(1)} s)`);
+}
+
+async function main() {
+  fs.mkdirSync(SHOTS, { recursive: true });
+  for (const f of fs.readdirSync(SHOTS)) if (f.endsWith('.png')) fs.rmSync(path.join(SHOTS, f));
+  tmp = fs.mkdtempSync(path.join(os.tmpdir(), 'stagehand-e2e-'));
+  const { url: base, tokens } = await startDaemon();
+  log(`daemon at ${base}`);
+
+  if (!fs.existsSync(CHROMIUM)) {
+    throw new Failure(`no Chromium at ${CHROMIUM}: install it (\`apt-get install -y chromium\`) or set CHROMIUM`);
+  }
+  const userDataDir = path.join(tmp, 'chromium-profile');
+  browser = await chromium.launchPersistentContext(userDataDir, {
+    executablePath: CHROMIUM,
+    headless: true,
+    args: ['--headless', '--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
+      '--disable-background-networking', '--disable-component-update', '--disable-sync'],
+    viewport: { width: 1440, height: 1000 },
+  });
+  const page = browser.pages()[0] || (await browser.newPage());
+  page.setDefaultTimeout(STEP_TIMEOUT_MS);
+  page.on('pageerror', (e) => pageErrors.push(e.message));
+  page.on('console', (m) => {
+    if (m.type() === 'error' && !/status of 404/.test(m.text())) log(`browser console: ${m.text()}`);
+  });
+  const op = tokens.operator;
+  const status = () => apiGet(base, op, '/api/status');
+
+  await stage('open the dashboard with the token in the URL fragment', async () => {
+    await page.goto(`${base}/#token=${op}`);
+    await page.locator('#conn', { hasText: 'live' }).waitFor();
+    await page.locator('#role', { hasText: 'operator' }).waitFor();
+    if (page.url().includes(op)) throw new Failure(`the token is still in the address bar: ${page.url()}`);
+    await page.locator('#axes .axis').first().waitFor();
+    await page.locator('#cameras .cam').first().waitFor();
+    await noErrorToasts(page, 'load');
+    await shot(page, 'loaded');
+  });
+
+  await stage('select quickstart and see its dry-run estimate', async () => {
+    await page.locator('#script-select option[value="quickstart"]').waitFor({ state: 'attached' });
+    await page.selectOption('#script-select', 'quickstart');
+    await page.locator('#dryrun .dryrun-head').waitFor();
+    const time = await page.locator('#est-time').innerText();
+    const frames = await page.locator('#est-frames').innerText();
+    const bytes = await page.locator('#est-bytes').innerText();
+    log(`estimate: rig time ${time}, frames ${frames}, data ${bytes}`);
+    if (!/\d/.test(time) || !/\d/.test(frames) || !/\d/.test(bytes)) {
+      throw new Failure(`the estimate is incomplete: time "${time}", frames "${frames}", bytes "${bytes}"`);
+    }
+    if (await page.locator('#run-start').isDisabled()) {
+      throw new Failure(`Start is disabled: ${await page.locator('#run-start-note').innerText()}`);
+    }
+    await noErrorToasts(page, 'dry run');
+    await shot(page, 'dry-run');
+  });
+
+  let runId = null;
+  await stage('start the run and answer its prompt from the page', async () => {
+    await page.click('#run-start');
+    const banner = page.locator('#prompt-banner');
+    await banner.waitFor({ state: 'visible' });
+    const msg = await page.locator('#prompt-message').innerText();
+    log(`prompt: ${msg}`);
+    if (!/sample/i.test(msg)) throw new Failure(`unexpected prompt text: ${msg}`);
+    const st = await status();
+    if (!st.run || !st.run.prompt) throw new Failure(`status shows no prompt: ${JSON.stringify(st.run)}`);
+    runId = st.run.run_id;
+    await shot(page, 'prompt');
+    await page.click('#prompt-continue');
+    await banner.waitFor({ state: 'hidden' });
+    await noErrorToasts(page, 'prompt');
+  });
+
+  await stage('watch the run progress to 100 %', async () => {
+    const pct = async () => Number(await page.locator('#run-progress').getAttribute('aria-valuenow'));
+    await page.waitForFunction(() => Number(document.querySelector('#run-progress').getAttribute('aria-valuenow')) >= 25,
+      null, { timeout: RUN_TIMEOUT_MS, polling: 250 });
+    log(`progress ${await pct()} %: ${await page.locator('#run-details').innerText()}`);
+    await shot(page, 'running');
+    await page.waitForFunction(() => Number(document.querySelector('#run-progress').getAttribute('aria-valuenow')) >= 100,
+      null, { timeout: RUN_TIMEOUT_MS, polling: 250 });
+    const text = await page.locator('#run-progress-text').innerText();
+    if (!/100\s*%/.test(text)) throw new Failure(`progress text is "${text}", not 100 %`);
+    await page.locator('#run-badge', { hasText: 'finished' }).waitFor();
+    const st = await status();
+    if (st.run) throw new Failure(`the daemon still has an active run: ${JSON.stringify(st.run)}`);
+    const runs = await apiGet(base, op, '/api/runs');
+    const mine = runs.find((r) => r.run_id === runId);
+    if (!mine || mine.status !== 'done') throw new Failure(`run ${runId} did not finish as done: ${JSON.stringify(mine)}`);
+    log(`run ${runId}: ${mine.steps_done}/${mine.steps_total} steps, ${mine.frames} frames`);
+    await noErrorToasts(page, 'run');
+  });
+
+  await stage('see a frame from every camera', async () => {
+    const n = (await status()).devices.cameras.length;
+    await page.waitForFunction((count) => {
+      const tiles = [...document.querySelectorAll('#cameras .cam')];
+      return tiles.length === count && tiles.every((t) => {
+        const img = t.querySelector('img.cam-img');
+        return img && !img.hidden && img.complete && img.naturalWidth > 0;
+      });
+    }, n, { timeout: 60_000, polling: 250 });
+    // Each tile ends on its camera's newest frame (thumbnails load a few at a time).
+    const cams = (await status()).devices.cameras.map((c) => c.id);
+    for (const cam of cams) {
+      const latest = await apiGet(base, op, `/api/cameras/${cam}/latest`);
+      if (latest.run_id !== runId) throw new Failure(`the latest frame of ${cam} is from run ${latest.run_id}, not ${runId}`);
+      await page.locator(`#cameras .cam[data-camera="${cam}"][data-frame="${latest.frame_id}"]`).waitFor({ timeout: 60_000 });
+    }
+    const sizes = await page.$$eval('#cameras img.cam-img', (imgs) => imgs.map((i) => `${i.naturalWidth}x${i.naturalHeight}`));
+    log(`${n} camera thumbnails loaded: ${sizes.join(' ')}`);
+    const logLines = await page.locator('#log li').count();
+    if (logLines < 10) throw new Failure(`the event log has only ${logLines} lines after a run`);
+    await page.locator('#log li', { hasText: `run ${runId} finished` }).first().waitFor();
+    await shot(page, 'finished');
+  });
+
+  await stage('jog an axis', async () => {
+    const before = (await status()).devices.axes.find((a) => a.id === 'turntable');
+    const row = page.locator('[data-axis="turntable"]');
+    await row.locator('button[data-jog="10"]').click();
+    const want = before.position_deg + 10;
+    await page.waitForFunction((w) => {
+      const t = document.querySelector('[data-axis="turntable"] .axis-pos').textContent;
+      return Math.abs(parseFloat(t) - w) < 0.05 && !document.querySelector('[data-axis="turntable"]').classList.contains('moving');
+    }, want, { timeout: STEP_TIMEOUT_MS, polling: 100 });
+    const after = (await status()).devices.axes.find((a) => a.id === 'turntable');
+    if (Math.abs(after.position_deg - want) > 0.05) {
+      throw new Failure(`turntable at ${after.position_deg}° after a +10° jog from ${before.position_deg}°`);
+    }
+    log(`turntable ${before.position_deg}° → ${after.position_deg}°`);
+    await noErrorToasts(page, 'jog');
+  });
+
+  await stage('switch a lamp on', async () => {
+    await page.click('[data-lamp="lamp1"]');
+    await page.locator('[data-lamp="lamp1"].on').waitFor();
+    const lamp = (await status()).devices.lamps.find((l) => l.id === 'lamp1');
+    if (!lamp.on) throw new Failure('lamp1 is off in the status after switching it on');
+    await noErrorToasts(page, 'lamp');
+  });
+
+  await stage('arm the laser through the confirmation dialog', async () => {
+    await page.click('#laser-arm');
+    const dlg = page.locator('#arm-dialog');
+    await dlg.waitFor({ state: 'visible' });
+    if (!(await page.locator('#arm-confirm').isDisabled())) throw new Failure('Arm is enabled before the confirmation is ticked');
+    await page.getByLabel('I confirm the enclosure is closed and eye protection is worn').check();
+    await shot(page, 'arm-dialog');
+    await page.click('#arm-confirm');
+    await dlg.waitFor({ state: 'hidden' });
+    await page.locator('#laser .l-armed', { hasText: 'ARMED' }).waitFor();
+    const laser = (await status()).devices.laser;
+    if (!laser.armed) throw new Failure(`the laser is not armed in the status: ${JSON.stringify(laser)}`);
+    await noErrorToasts(page, 'arm');
+    await shot(page, 'armed');
+  });
+
+  await stage('press E-STOP', async () => {
+    await page.click('#estop');
+    await page.locator('#estop-banner').waitFor({ state: 'visible' });
+    await page.locator('#laser .l-armed', { hasText: 'disarmed' }).waitFor();
+    await page.locator('[data-lamp="lamp1"]:not(.on)').waitFor();
+    const st = await status();
+    const lampsOn = st.devices.lamps.filter((l) => l.on).map((l) => l.id);
+    const problems = [];
+    if (!st.estop) problems.push('estop is not latched');
+    if (lampsOn.length) problems.push(`lamps still on: ${lampsOn.join(', ')}`);
+    if (st.devices.laser && (st.devices.laser.armed || st.devices.laser.on)) problems.push(`laser ${JSON.stringify(st.devices.laser)}`);
+    if (st.devices.axes.some((a) => a.moving)) problems.push('an axis is still moving');
+    if (problems.length) throw new Failure(`after E-STOP: ${problems.join('; ')}`);
+    if (!(await page.locator('[data-axis="turntable"] button[data-jog="1"]').isDisabled())) {
+      throw new Failure('jog buttons are still enabled while the e-stop is latched');
+    }
+    await noErrorToasts(page, 'e-stop');
+    await shot(page, 'estop');
+  });
+
+  await stage('reset the e-stop', async () => {
+    await page.click('#estop-reset');
+    await page.locator('#estop-banner').waitFor({ state: 'hidden' });
+    if ((await status()).estop) throw new Failure('the e-stop is still latched after Reset');
+    await noErrorToasts(page, 'reset');
+  });
+
+  await stage('a read-only session sees the rig but cannot control it', async () => {
+    const ro = await browser.newPage();
+    ro.on('pageerror', (e) => pageErrors.push(`read-only page: ${e.message}`));
+    await ro.goto(`${base}/#token=${tokens.read_only}`);
+    await ro.locator('#role', { hasText: 'read-only' }).waitFor();
+    await ro.locator('#readonly-banner').waitFor({ state: 'visible' });
+    await ro.locator('#axes .axis').first().waitFor();
+    // Thumbnails load with the read-only token too (as ?access_token=).
+    await ro.waitForFunction(() => [...document.querySelectorAll('#cameras .cam')].every((t) => {
+      const img = t.querySelector('img.cam-img');
+      return img && !img.hidden && img.complete && img.naturalWidth > 0;
+    }), null, { timeout: 60_000, polling: 250 });
+    for (const sel of ['#run-start', '[data-axis="turntable"] button[data-jog="1"]', '[data-lamp="lamp1"]', '#laser-arm']) {
+      if (!(await ro.locator(sel).isDisabled())) throw new Failure(`${sel} is enabled for a read-only token`);
+    }
+    await shot(ro, 'read-only');
+    await ro.close();
+  });
+
+  await stage('a wrong token gets the sign-in box with a message', async () => {
+    const bad = await browser.newPage();
+    await bad.goto(`${base}/#token=not-a-valid-token-0000000000`);
+    await bad.locator('#login').waitFor({ state: 'visible' });
+    const msg = await bad.locator('#login-error').innerText();
+    if (!/token/i.test(msg)) throw new Failure(`the sign-in box says "${msg}" for a wrong token`);
+    await bad.close();
+  });
+}
+
+for (const sig of ['SIGINT', 'SIGTERM']) {
+  process.on(sig, () => {
+    log(`${sig}: stopping the daemon`);
+    stopDaemon().finally(() => process.exit(130));
+  });
+}
+
+let failed = false;
+try {
+  await main();
+  log(`PASS: dashboard end-to-end test (${secs()} s); screenshots in ${SHOTS}`);
+} catch (e) {
+  failed = true;
+  console.error(`\n[e2e] FAIL${e.stage ? ` at "${e.stage}"` : ''}: ${e.message}`);
+  if (!(e instanceof Failure) && e.stack) console.error(e.stack);
+  try {
+    const page = browser && browser.pages()[0];
+    if (page) {
+      const file = path.join(SHOTS, 'FAILED.png');
+      await page.screenshot({ path: file, fullPage: true });
+      console.error(`[e2e] screenshot of the failure: ${file}`);
+      const toasts = await page.locator('.toast').allInnerTexts();
+      if (toasts.length) console.error(`[e2e] messages on the page:\n  ${toasts.join('\n  ').replace(/\n(?!  )/g, ' | ')}`);
+      const lines = await page.locator('#log li').allInnerTexts();
+      if (lines.length) console.error(`[e2e] event log (newest first):\n  ${lines.slice(0, 25).join('\n  ').replace(/\t/g, ' ')}`);
+    }
+  } catch (_) { /* the browser may be gone */ }
+  const tail = daemonLog.split('\n').slice(-40).join('\n');
+  console.error(`[e2e] daemon output (last 40 lines):\n${tail}`);
+} finally {
+  if (browser) await browser.close().catch(() => {});
+  await stopDaemon().catch((e) => console.error(`[e2e] cannot stop the daemon: ${e.message}`));
+  if (tmp && !failed) fs.rmSync(tmp, { recursive: true, force: true });
+  else if (tmp) console.error(`[e2e] data directory kept for inspection: ${tmp}`);
+}
+process.exit(failed ? 1 : 0);
