@@ -51,7 +51,7 @@ mkdir -p "$report_dir"
 rm -f "$report_dir"/*.xml "$report_dir"/*.ndjson
 
 echo "== starting the daemon on $url (data in $work/data)" >&2
-target/debug/stagehand serve --rig "$work/rig.toml" --data "$work/data" \
+"${CARGO_TARGET_DIR:-target}/debug/stagehand" serve --rig "$work/rig.toml" --data "$work/data" \
   --listen "127.0.0.1:$port" --scripts sequences > "$report_dir/daemon.log" 2>&1 &
 daemon_pid=$!
 for _ in $(seq 1 100); do

@@ -1037,6 +1037,12 @@ async fn a_second_opener_of_the_daemons_ports_is_told_to_use_remote() -> TestRes
         }
     }
     d.shutdown().await;
+    // The fake port's lock file is this test's own: leave the shared lock directory clean.
+    let lock = stagehand::port_lock::lock_file_for(
+        &stagehand::port_lock::lock_dir(),
+        &stagehand::port_lock::canonical_port(&port),
+    );
+    let _ = std::fs::remove_file(lock);
     Ok(())
 }
 

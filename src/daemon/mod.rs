@@ -199,6 +199,8 @@ pub async fn start(opts: ServeOptions) -> Result<RunningDaemon, DaemonError> {
     let addr = listener
         .local_addr()
         .map_err(|e| DaemonError::Io(e.to_string()))?;
+    // A CLI refused the rig's ports is told where to send its run instead.
+    crate::port_lock::record_listen_addr(addr);
     let app = router(state.clone());
     let (tx, rx) = oneshot::channel::<()>();
     let server = tokio::spawn(async move {
@@ -224,7 +226,8 @@ pub async fn start(opts: ServeOptions) -> Result<RunningDaemon, DaemonError> {
 /// The whole HTTP surface: the API (behind the token check and the body limit), the OpenAPI
 /// document and Swagger UI, the dashboard, and a JSON 404 for everything else.
 pub fn router(state: AppState) -> Router {
-    let (api, openapi) = api::routes().split_for_parts();
+    let (api, mut openapi) = api::routes().split_for_parts();
+    api::document_common_errors(&mut openapi);
     let api = api
         .layer(axum::middleware::from_fn_with_state(
             state.clone(),
