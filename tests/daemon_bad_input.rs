@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use serde_json::{Value, json};
-use stagehand::daemon::{self, DaemonError, RunningDaemon, ServeOptions};
+use stagehand::daemon::{DaemonError, RunningDaemon};
 
 type TestResult = Result<(), Box<dyn std::error::Error + Send + Sync>>;
 
@@ -25,15 +25,7 @@ fn small_rig(dir: &Path) -> PathBuf {
 }
 
 async fn start(dir: &Path, rig: &Path) -> Result<RunningDaemon, DaemonError> {
-    daemon::start(ServeOptions {
-        rig: Some(rig.display().to_string()),
-        listen: "127.0.0.1:0".parse().expect("address"),
-        data: dir.join("data"),
-        scripts: Some(common::root().join("sequences")),
-        seed: 1,
-        emulation: None,
-    })
-    .await
+    common::start_daemon(&dir.join("data"), Some(rig)).await
 }
 
 /// One answer: status, content type and body (not read for event streams).

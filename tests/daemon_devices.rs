@@ -1,26 +1,21 @@
 //! Manual device control over the daemon's API, on the simulated light stage in real time:
 //! axes, lamps, the laser and its interlock, the e-stop, and hold-to-jog over a WebSocket.
 
-use std::time::{Duration, Instant};
+mod common;
+
+use std::time::Duration;
 
 use futures_util::{SinkExt, StreamExt};
 use serde_json::{Value, json};
-use stagehand::daemon::{RunningDaemon, ServeOptions};
+use stagehand::daemon::RunningDaemon;
 use tokio_tungstenite::tungstenite::Message;
 
 /// A daemon on the built-in light stage, on a free port.
 async fn daemon() -> (RunningDaemon, tempfile::TempDir) {
     let dir = tempfile::tempdir().expect("temp dir");
-    let d = stagehand::daemon::start(ServeOptions {
-        rig: None,
-        listen: "127.0.0.1:0".parse().expect("address"),
-        data: dir.path().to_path_buf(),
-        scripts: Some("sequences".into()),
-        seed: 1,
-        emulation: None,
-    })
-    .await
-    .expect("daemon starts");
+    let d = common::start_daemon(dir.path(), None)
+        .await
+        .expect("daemon starts");
     (d, dir)
 }
 
@@ -107,20 +102,6 @@ impl Api {
     }
 }
 
-/// Runs blocking HTTP calls off the runtime.
-async fn blocking<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> T {
-    tokio::task::spawn_blocking(f).await.expect("no panic")
-}
-
-/// Polls `cond` until it holds (behaviour, not wall-clock: the deadline is only a guard).
-fn eventually(what: &str, mut cond: impl FnMut() -> bool) {
-    let deadline = Instant::now() + Duration::from_secs(10);
-    while !cond() {
-        assert!(Instant::now() < deadline, "never happened: {what}");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
 fn pos(v: &Value) -> f64 {
     v["position_deg"].as_f64().expect("position_deg")
 }
@@ -130,7 +111,7 @@ async fn axes_move_jog_home_and_stop_with_positions_in_the_status() {
     let (d, _dir) = daemon().await;
     let api = Api::operator(&d);
     let ro = Api::read_only(&d);
-    blocking(move || {
+    common::blocking(move || {
         // Moving before homing is refused with a hint to home.
         let (s, v) = api.post(
             "/api/axes/turntable/move",
@@ -234,7 +215,7 @@ async fn axes_move_jog_home_and_stop_with_positions_in_the_status() {
 async fn the_laser_needs_arming_and_a_closed_interlock() {
     let (d, _dir) = daemon().await;
     let api = Api::operator(&d);
-    blocking(move || {
+    common::blocking(move || {
         let (s, v) = api.post("/api/laser/on", None);
         assert_eq!(s, 409, "on without arming: {v}");
         assert!(v["hint"].as_str().unwrap().contains("arm"), "{v}");
@@ -268,7 +249,7 @@ async fn the_laser_needs_arming_and_a_closed_interlock() {
         assert_eq!(v["on"], true, "{v}");
         assert_eq!(v["interlock_closed"], true);
         api.ok("/api/interlock", Some(json!({"closed": false})));
-        eventually("the laser goes off when the door opens", || {
+        common::eventually(10, "the laser goes off when the door opens", || {
             let l = &api.status()["devices"]["laser"];
             l["on"] == false && l["interlock_closed"] == false
         });
@@ -285,7 +266,7 @@ async fn the_laser_needs_arming_and_a_closed_interlock() {
 async fn the_estop_stops_a_long_move_switches_everything_off_and_latches() {
     let (d, _dir) = daemon().await;
     let api = Api::operator(&d);
-    let elapsed_ms = blocking(move || {
+    let elapsed_ms = common::blocking(move || {
         api.ok("/api/axes/turntable/home", None);
         api.ok("/api/lamps/lamp1", Some(json!({"on": true})));
         api.ok("/api/laser/arm", Some(json!({"confirm": true})));
@@ -299,7 +280,7 @@ async fn the_estop_stops_a_long_move_switches_everything_off_and_latches() {
                 Some(json!({"target_deg": 300.0})),
             )
         });
-        eventually("the turntable moves", || {
+        common::eventually(10, "the turntable moves", || {
             api.axis("turntable")["moving"] == true
         });
         std::thread::sleep(Duration::from_millis(300));
@@ -396,7 +377,7 @@ async fn hold_to_jog_stops_when_the_client_goes_quiet() {
     let (d, _dir) = daemon().await;
     let api = Api::operator(&d);
     let http = api.clone();
-    blocking(move || http.ok("/api/axes/turntable/home", None)).await;
+    common::blocking(move || http.ok("/api/axes/turntable/home", None)).await;
     let url = |token: &str| format!("ws://{}/api/ws/jog?access_token={token}", d.addr);
 
     // A read-only token may not jog.
@@ -441,7 +422,7 @@ async fn hold_to_jog_stops_when_the_client_goes_quiet() {
         p > 1.0 && p < 300.0,
         "moved some way, not to the limit: {stopped}"
     );
-    let a = blocking(move || api.axis("turntable")).await;
+    let a = common::blocking(move || api.axis("turntable")).await;
     assert_eq!(a["moving"], false, "{a}");
     assert!((pos(&a) - p).abs() < 0.01, "{a} vs {stopped}");
 
@@ -453,7 +434,7 @@ async fn hold_to_jog_stops_when_the_client_goes_quiet() {
     .unwrap();
     until(&mut ws, "crawling", |v| v["moving"] == true).await;
     let http = Api::operator(&d);
-    blocking(move || http.ok("/api/estop", None)).await;
+    common::blocking(move || http.ok("/api/estop", None)).await;
     ws.send(Message::text(json!({"hold": true}).to_string()))
         .await
         .unwrap();
@@ -470,7 +451,7 @@ async fn hold_to_jog_stops_when_the_client_goes_quiet() {
     .await;
     assert!(v["error"].as_str().unwrap().contains("e-stop"), "{v}");
     let http = Api::operator(&d);
-    blocking(move || http.ok("/api/estop/reset", None)).await;
+    common::blocking(move || http.ok("/api/estop/reset", None)).await;
 
     // An explicit stop, then closing the socket mid-jog, stop the axis too.
     ws.send(Message::text(
@@ -492,8 +473,8 @@ async fn hold_to_jog_stops_when_the_client_goes_quiet() {
     until(&mut ws, "moving again", |v| v["moving"] == true).await;
     drop(ws);
     let api = Api::operator(&d);
-    blocking(move || {
-        eventually("closing the socket stops the axis", || {
+    common::blocking(move || {
+        common::eventually(10, "closing the socket stops the axis", || {
             let a = api.axis("turntable");
             a["moving"] == false
         });

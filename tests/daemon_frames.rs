@@ -168,16 +168,9 @@ fn sql_i64(d: &Dataset, sql: &str) -> i64 {
 }
 
 async fn daemon(d: &Dataset) -> RunningDaemon {
-    stagehand::daemon::start(ServeOptions {
-        rig: None,
-        listen: "127.0.0.1:0".parse().expect("address"),
-        data: d.data.clone(),
-        scripts: Some("sequences".into()),
-        seed: 1,
-        emulation: None,
-    })
-    .await
-    .expect("daemon starts")
+    common::start_daemon(&d.data, None)
+        .await
+        .expect("daemon starts")
 }
 
 /// A blocking HTTP client (call it inside `spawn_blocking`).

@@ -3,12 +3,13 @@
 //! resume, abort and resume of a stored run, one run at a time, the single capture, and
 //! quickstart from start to end.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 use serde_json::{Value, json};
-use stagehand::daemon::{RunningDaemon, ServeOptions};
-use stagehand_devices::rig::BUILTIN_LIGHTSTAGE;
+use stagehand::daemon::RunningDaemon;
 
 /// A short tour: a prompt, two captures (the second an HDR bracket) and a second prompt.
 /// Steps: 0 prompt, 1 home, 2 lamps, 3 capture (2 raw), 4 prompt, 5 capture (2 raw + 1 HDR),
@@ -25,31 +26,14 @@ lamps_off();
 const TOUR_STEPS: u64 = 7;
 const TOUR_FRAMES: u64 = 5;
 
-/// The built-in light stage with 32×24 cameras, written to `dir`.
-fn small_rig(dir: &Path) -> PathBuf {
-    let text = BUILTIN_LIGHTSTAGE
-        .replace("width = 1024", "width = 32")
-        .replace("height = 768", "height = 24");
-    assert_ne!(text, BUILTIN_LIGHTSTAGE, "the rig names its camera size");
-    let path = dir.join("small-lightstage.toml");
-    std::fs::write(&path, text).expect("write the rig file");
-    path
-}
-
-/// A daemon on the small rig with the repository's sequences as built-in scripts.
+/// A daemon on the light stage with 32×24 cameras, with the repository's sequences as
+/// built-in scripts.
 async fn daemon() -> (RunningDaemon, tempfile::TempDir) {
     let dir = tempfile::tempdir().expect("temp dir");
-    let rig = small_rig(dir.path());
-    let d = stagehand::daemon::start(ServeOptions {
-        rig: Some(rig.display().to_string()),
-        listen: "127.0.0.1:0".parse().expect("address"),
-        data: dir.path().join("data"),
-        scripts: Some(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("sequences")),
-        seed: 1,
-        emulation: None,
-    })
-    .await
-    .expect("daemon starts");
+    let rig = common::small_rig_file(dir.path(), "lightstage", 32, 24);
+    let d = common::start_daemon(&dir.path().join("data"), Some(&rig))
+        .await
+        .expect("daemon starts");
     (d, dir)
 }
 
@@ -145,7 +129,7 @@ impl Api {
 
     /// Waits for the prompt of `step` and answers it.
     fn answer_prompt(&self, id: &str, step: u64, answer: &str) {
-        eventually(&format!("the prompt of step {step}"), || {
+        common::eventually(45, &format!("the prompt of step {step}"), || {
             self.live()["prompt"]["step"] == step
         });
         assert_eq!(self.live()["state"], "prompt");
@@ -157,25 +141,11 @@ impl Api {
     }
 
     fn wait_status(&self, id: &str, status: &str) -> Value {
-        eventually(&format!("run {id} {status}"), || {
+        common::eventually(45, &format!("run {id} {status}"), || {
             let r = self.run(id);
             r["status"] == status && !r["active"].as_bool().unwrap_or(true)
         });
         self.run(id)
-    }
-}
-
-/// Runs blocking HTTP calls off the runtime.
-async fn blocking<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> T {
-    tokio::task::spawn_blocking(f).await.expect("no panic")
-}
-
-/// Polls `cond` until it holds (the deadline only guards against a hang).
-fn eventually(what: &str, mut cond: impl FnMut() -> bool) {
-    let deadline = Instant::now() + Duration::from_secs(45);
-    while !cond() {
-        assert!(Instant::now() < deadline, "never happened: {what}");
-        std::thread::sleep(Duration::from_millis(20));
     }
 }
 
@@ -203,7 +173,7 @@ async fn scripts_upload_validate_and_refuse_bad_names() {
     let (d, _dir) = daemon().await;
     let api = Api::new(&d, &d.state.tokens.operator);
     let reader = Api::new(&d, &d.state.tokens.read_only);
-    blocking(move || {
+    common::blocking(move || {
         let (status, list) = api.get("/api/scripts");
         assert_eq!(status, 200, "{list}");
         assert!(
@@ -354,7 +324,7 @@ async fn runs_with_prompts_pause_abort_resume_and_capture() {
     let data = dir.path().join("data");
     let api = Api::new(&d, &d.state.tokens.operator);
     let state = d.state.clone();
-    blocking(move || {
+    common::blocking(move || {
         let (status, dry) = api.put("/api/scripts/tour", TOUR.as_bytes());
         assert_eq!(status, 200, "{dry}");
 
@@ -371,13 +341,15 @@ async fn runs_with_prompts_pause_abort_resume_and_capture() {
         assert_eq!(status, 409, "{e}");
         api.answer_prompt(&id, 0, "continue");
         // Pause while the second prompt waits: the run stops before step 5.
-        eventually("the second prompt", || api.live()["prompt"]["step"] == 4);
+        common::eventually(45, "the second prompt", || {
+            api.live()["prompt"]["step"] == 4
+        });
         let v = api.ok(&format!("/api/runs/{id}/pause"), None);
         assert_eq!(v["state"], "prompt", "a pending prompt shows first: {v}");
         let (status, e) = api.post(&format!("/api/runs/{id}/pause"), None);
         assert_eq!(status, 409, "already paused: {e}");
         api.answer_prompt(&id, 4, "continue");
-        eventually("paused after step 4", || {
+        common::eventually(45, "paused after step 4", || {
             let l = api.live();
             l["state"] == "paused" && l["steps_done"] == 5
         });
@@ -437,7 +409,9 @@ async fn runs_with_prompts_pause_abort_resume_and_capture() {
         let id2 = api.start("tour");
         assert_ne!(id2, id);
         api.answer_prompt(&id2, 0, "continue");
-        eventually("the second prompt", || api.live()["prompt"]["step"] == 4);
+        common::eventually(45, "the second prompt", || {
+            api.live()["prompt"]["step"] == 4
+        });
         let (status, e) = api.post(
             &format!("/api/runs/{id2}/prompt"),
             Some(json!({"answer": "maybe"})),
@@ -522,7 +496,7 @@ async fn quickstart_runs_to_the_end_and_broken_runs_are_listed() {
     std::fs::create_dir_all(data.join("runs").join("broken-run")).expect("mkdir");
     let api = Api::new(&d, &d.state.tokens.operator);
     let started = Instant::now();
-    let id = blocking(move || {
+    let id = common::blocking(move || {
         let (status, v) = api.post(
             "/api/runs",
             Some(json!({"script": "quickstart", "seed": 7})),
@@ -534,7 +508,7 @@ async fn quickstart_runs_to_the_end_and_broken_runs_are_listed() {
         let expected = v["estimate"]["frames"].as_u64().expect("frames");
         api.answer_prompt(&id, 0, "continue");
         let mut last = 0.0;
-        eventually("quickstart done", || {
+        common::eventually(45, "quickstart done", || {
             let l = api.live();
             if let Some(p) = l["progress"].as_f64() {
                 assert!(p >= last, "progress never goes back");

@@ -239,3 +239,38 @@ pub fn disk_checksums(dir: &Path) -> Vec<(String, String)> {
 pub fn count(conn: &rusqlite::Connection, sql: &str) -> i64 {
     conn.query_row(sql, [], |r| r.get(0)).unwrap()
 }
+
+/// Starts a daemon in-process on a free loopback port, with its data in `data` and the
+/// repository's sequences as built-in scripts; `rig` is a rig file (the built-in light stage
+/// when `None`). Call inside a multi-threaded tokio runtime.
+pub async fn start_daemon(
+    data: &Path,
+    rig: Option<&Path>,
+) -> Result<stagehand::daemon::RunningDaemon, stagehand::daemon::DaemonError> {
+    stagehand::daemon::start(stagehand::daemon::ServeOptions {
+        rig: rig.map(|r| r.display().to_string()),
+        listen: "127.0.0.1:0".parse().expect("address"),
+        data: data.to_path_buf(),
+        scripts: Some(root().join("sequences")),
+        seed: 1,
+        emulation: None,
+    })
+    .await
+}
+
+/// Runs blocking HTTP calls off the async workers (the daemon under test shares the runtime).
+pub async fn blocking<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> T {
+    tokio::task::spawn_blocking(f).await.expect("no panic")
+}
+
+/// Polls `cond` every 20 ms until it holds; `limit_s` only guards against a hang.
+pub fn eventually(limit_s: u64, what: &str, mut cond: impl FnMut() -> bool) {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(limit_s);
+    while !cond() {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "never happened: {what}"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}
