@@ -21,7 +21,7 @@ use stagehand_devices::rig::{
     AxisSpec, Backend, GRBL_BAUD, RELAY_SERIAL_BAUD, RigSpec, SwitchBankSpec,
 };
 use stagehand_devices::switch_bank::SwitchBankHandle;
-use stagehand_devices::switched::{GpioTrigger, SwitchLaser};
+use stagehand_devices::switched::{GpioTrigger, SeriesLaser, SwitchLaser};
 use stagehand_devices::trigger::{TriggerDriver, TriggerHandle};
 use stagehand_devices::{DeviceError, rig::CameraSpec};
 use stagehand_simulator::World;
@@ -30,7 +30,7 @@ use stagehand_simulator::emulators::{
     NumatoEmulator,
 };
 use stagehand_simulator::sim_devices::{
-    SimAxis, SimCamera, SimCart, SimLaser, SimSwitchBank, SimTrigger,
+    MirroredAxis, MirroredLaser, SimAxis, SimCamera, SimCart, SimLaser, SimSwitchBank, SimTrigger,
 };
 
 use crate::rig::OpenError;
@@ -198,11 +198,17 @@ pub(crate) fn open_devices(
                     .cloned()
                     .ok_or_else(|| missing_controller(&a.id))?;
                 let shared_s = shared_allowance_s(&grbl_axes, a);
-                AxisHandle::spawn_shared(
-                    a.clone(),
-                    GrblAxis::new(ctrl, a).map_err(OpenError::from)?,
-                    shared_s,
-                )
+                let driver = GrblAxis::new(ctrl, a).map_err(OpenError::from)?;
+                match (emulation, world) {
+                    // A hybrid rig (real controller, simulated cameras): the World follows
+                    // the positions the real axis reports, so frames show what it did.
+                    (None, Some(w)) => AxisHandle::spawn_shared(
+                        a.clone(),
+                        MirroredAxis::new(&a.id, driver, w.clone()),
+                        shared_s,
+                    ),
+                    _ => AxisHandle::spawn_shared(a.clone(), driver, shared_s),
+                }
             }
             _ => AxisHandle::spawn(a.clone(), SimAxis::new(a.clone(), world_of(world)?.clone())),
         };
@@ -258,11 +264,42 @@ pub(crate) fn open_devices(
                     .get(&port_of(&l.id, &l.port)?)
                     .cloned()
                     .ok_or_else(|| missing_controller(&l.id))?;
-                LaserHandle::spawn_with_interlock(
-                    l.clone(),
-                    GrblLaser::new(ctrl, &l.id),
-                    interlock.watch(),
-                )
+                let output = GrblLaser::new(ctrl, &l.id);
+                // Optionally powered through a relay too (its board has the watchdog GRBL
+                // lacks); in a hybrid rig the World follows the confirmed emission.
+                let power = match &l.bank {
+                    Some(bank_id) => Some(SwitchLaser::new(
+                        &l.id,
+                        banks
+                            .get(bank_id)
+                            .cloned()
+                            .ok_or_else(|| OpenError::Wiring {
+                                device: l.id.clone(),
+                                message: format!("no switch bank `{bank_id}`"),
+                            })?,
+                        l.channel.unwrap_or(0),
+                    )),
+                    None => None,
+                };
+                let mirror = match (emulation, world) {
+                    (None, Some(w)) => Some(w.clone()),
+                    _ => None,
+                };
+                let (l, lock) = (l.clone(), interlock.watch());
+                match (power, mirror) {
+                    (Some(p), Some(w)) => LaserHandle::spawn_with_interlock(
+                        l,
+                        MirroredLaser::new(SeriesLaser::new(p, output), w),
+                        lock,
+                    ),
+                    (Some(p), None) => {
+                        LaserHandle::spawn_with_interlock(l, SeriesLaser::new(p, output), lock)
+                    }
+                    (None, Some(w)) => {
+                        LaserHandle::spawn_with_interlock(l, MirroredLaser::new(output, w), lock)
+                    }
+                    (None, None) => LaserHandle::spawn_with_interlock(l, output, lock),
+                }
             }
             Backend::Switch => {
                 let bank_id = l.bank.clone().unwrap_or_default();

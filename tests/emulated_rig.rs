@@ -17,8 +17,7 @@ use stagehand::script::ScriptSource;
 use stagehand::session;
 use stagehand_simulator::emulators::{Fault, Faults};
 
-use common::{Outcome, db, root, run_prepared_with};
-use stagehand::storage::png16::decode_png16;
+use common::{Outcome, db, raw_pixels, root, run_prepared_with};
 
 const GRBL_PORT: &str = "/dev/serial/by-id/usb-1a86_USB2.0-Serial-if00-port0";
 const RELAY_PORT: &str = "/dev/serial/by-id/usb-Numato_Systems_Pvt._Ltd._Numato_Lab_8_Channel_USB_Relay_Module_NL0001-if00";
@@ -84,28 +83,6 @@ fn tour() -> ScriptSource {
         name: "tour.rhai".into(),
         text: TOUR.into(),
     }
-}
-
-/// Every raw frame's path and decoded pixels. (The files themselves differ: their metadata
-/// holds the rig time, which runs in real time through the emulators.)
-fn raw_pixels(dir: &Path) -> Vec<(String, Vec<u16>)> {
-    let conn = db(dir);
-    let mut stmt = conn
-        .prepare("SELECT path FROM frames WHERE kind = 'raw' ORDER BY path")
-        .expect("query");
-    let paths: Vec<String> = stmt
-        .query_map([], |r| r.get(0))
-        .expect("rows")
-        .collect::<Result<_, _>>()
-        .expect("paths");
-    paths
-        .into_iter()
-        .map(|p| {
-            let bytes = std::fs::read(dir.join(&p)).expect("frame file");
-            let png = decode_png16(&p, &bytes).expect("decodes");
-            (p, png.pixels)
-        })
-        .collect()
 }
 
 /// Raw frames of two runs are the same frames, pixel for pixel.

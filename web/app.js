@@ -504,7 +504,8 @@ function renderLaser() {
         h('span', { class: 'laser-id' }),
         h('span', { class: 'badge l-armed' }),
         h('span', { class: 'badge l-on' }),
-        h('span', { class: 'badge l-interlock' })),
+        h('span', { class: 'badge l-interlock' }),
+        h('span', { class: 'badge l-watchdog' })),
       h('div', { class: 'row' },
         h('button', { type: 'button', id: 'laser-arm', class: 'btn btn-warn', 'data-need': 'operator noestop manual laserdisarmed', onclick: openArmDialog }, 'Arm…'),
         h('button', {
@@ -533,6 +534,12 @@ function renderLaser() {
   il.textContent = closed === true ? 'interlock closed' : closed === false ? 'interlock OPEN' : 'interlock ?';
   il.className = `badge l-interlock ${closed === true ? 'badge-ok' : closed === false ? 'badge-danger' : ''}`;
   il.title = S.interlock && S.interlock.error ? `cannot read the interlock: ${S.interlock.error}` : 'The enclosure interlock: the laser fires only when it is closed';
+  // What switches the laser off if stagehand dies: a relay board's watchdog, or nothing (GRBL).
+  const wd = box.querySelector('.l-watchdog');
+  const noWatchdog = (laser.watchdog || '').startsWith('no watchdog');
+  wd.textContent = noWatchdog ? 'NO WATCHDOG' : laser.watchdog_s != null ? `watchdog ${laser.watchdog_s} s` : 'simulated';
+  wd.className = `badge l-watchdog ${noWatchdog ? 'badge-warn' : 'badge-ok'}`;
+  wd.title = laser.watchdog || '';
   const tog = $('interlock-toggle');
   const canSet = !!(S.interlock && S.interlock.settable);
   tog.hidden = !(canSet && closed !== null);

@@ -122,6 +122,29 @@ pub enum DeviceError {
         "{device}: {message}; the device lost the state it was set to (a reset or power glitch), so the step is retaken"
     )]
     StateLost { device: String, message: String },
+    #[error(
+        "{device}: the controller on {port} cannot work for this rig as set up: {problems}; then reconnect (check with `stagehand devices`)"
+    )]
+    Misconfigured {
+        device: String,
+        port: String,
+        problems: String,
+    },
+    #[error("{device}: homing failed with ALARM:{code} ({meaning}); {check}")]
+    HomingFailed {
+        device: String,
+        code: u32,
+        meaning: String,
+        check: String,
+    },
+    #[error(
+        "{device}: the laser output did not switch {wanted}: {reason}; check the controller's spindle wiring and settings"
+    )]
+    LaserNotSwitched {
+        device: String,
+        wanted: &'static str,
+        reason: String,
+    },
     #[error("{device}: {message}")]
     Other { device: String, message: String },
 }
@@ -152,6 +175,9 @@ impl DeviceError {
             | DeviceError::Rejected { device, .. }
             | DeviceError::Alarm { device, .. }
             | DeviceError::StateLost { device, .. }
+            | DeviceError::Misconfigured { device, .. }
+            | DeviceError::HomingFailed { device, .. }
+            | DeviceError::LaserNotSwitched { device, .. }
             | DeviceError::Other { device, .. } => device,
         }
     }
@@ -181,6 +207,9 @@ impl DeviceError {
             | DeviceError::Rejected { device, .. }
             | DeviceError::Alarm { device, .. }
             | DeviceError::StateLost { device, .. }
+            | DeviceError::Misconfigured { device, .. }
+            | DeviceError::HomingFailed { device, .. }
+            | DeviceError::LaserNotSwitched { device, .. }
             | DeviceError::Other { device, .. } => device,
         }
     }

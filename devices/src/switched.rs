@@ -1,5 +1,6 @@
 //! Devices that are nothing but a switched output of another device: a laser powered through
-//! a switch-bank channel, and a camera trigger on a relay board's GPIO line (backend `switch`).
+//! a switch-bank channel (alone, or in series with a GRBL spindle output), and a camera trigger
+//! on a relay board's GPIO line (backend `switch`).
 
 use std::sync::Arc;
 
@@ -40,6 +41,43 @@ impl LaserDriver for SwitchLaser {
     async fn fitted(&mut self, colour_nm: u32, mount_elevation_deg: f64) -> DeviceResult<()> {
         tracing::info!(device = %self.device, colour_nm, mount_elevation_deg, "laser module fitted");
         Ok(())
+    }
+}
+
+/// A laser behind two switches in series, e.g. a GRBL spindle output and a relay channel whose
+/// board has a watchdog: it emits only while both are on. On switches the relay (`power`)
+/// first and the controller (`output`) second; off switches both, in the reverse order, even if
+/// the first fails, so a fault never leaves the laser powered.
+pub struct SeriesLaser<P, O> {
+    power: P,
+    output: O,
+}
+
+impl<P: LaserDriver, O: LaserDriver> SeriesLaser<P, O> {
+    /// The laser emitting when `power` and `output` are both on.
+    pub fn new(power: P, output: O) -> Self {
+        Self { power, output }
+    }
+}
+
+impl<P: LaserDriver, O: LaserDriver> LaserDriver for SeriesLaser<P, O> {
+    async fn set_emission(&mut self, on: bool, colour_nm: u32) -> DeviceResult<()> {
+        if on {
+            self.power.set_emission(true, colour_nm).await?;
+            if let Err(e) = self.output.set_emission(true, colour_nm).await {
+                let _ = self.power.set_emission(false, colour_nm).await;
+                return Err(e);
+            }
+            Ok(())
+        } else {
+            let a = self.output.set_emission(false, colour_nm).await;
+            let b = self.power.set_emission(false, colour_nm).await;
+            a.and(b)
+        }
+    }
+
+    async fn fitted(&mut self, colour_nm: u32, mount_elevation_deg: f64) -> DeviceResult<()> {
+        self.output.fitted(colour_nm, mount_elevation_deg).await
     }
 }
 

@@ -37,7 +37,7 @@ proptest! {
         work in any::<bool>(),
     ) {
         let kind = if work { PosKind::Work } else { PosKind::Machine };
-        let status = Reply::Status(Status { state, pos, kind });
+        let status = Reply::Status(Status { state, pos, kind, feed: Some(0.0), spindle_speed: Some(0.0), ..Status::default() });
         let line = status.to_line();
         prop_assert_eq!(parse_line(&line), status.clone());
         prop_assert_eq!(parse_line(&format!("{line}\r\n")), status);
@@ -92,8 +92,8 @@ proptest! {
 
     #[test]
     fn moves_encode_three_decimals_and_parse_back(deg in -100_000.0f64..100_000.0, axis in prop::sample::select(vec!['X', 'Y', 'Z'])) {
-        let line = Command::Move { axis, deg }.line();
-        let number = line.strip_prefix(&format!("G90 G0 {axis}")).unwrap();
+        let line = Command::Move { axis, machine: deg }.line();
+        let number = line.strip_prefix(&format!("G53 G0 {axis}")).unwrap();
         let decimals = number.split_once('.').map(|(_, d)| d.len());
         prop_assert_eq!(decimals, Some(3), "{}", line);
         let back: f64 = number.parse().unwrap();
@@ -118,15 +118,15 @@ fn command_bytes() {
     let commands = [
         Command::Move {
             axis: 'X',
-            deg: 12.5,
+            machine: 12.5,
         },
         Command::Move {
             axis: 'y',
-            deg: -3.25,
+            machine: -3.25,
         },
         Command::Move {
             axis: 'Z',
-            deg: 359.9996,
+            machine: 359.9996,
         },
         Command::Home(Some('X')),
         Command::Home(None),
@@ -137,9 +137,9 @@ fn command_bytes() {
     ];
     let text: Vec<String> = commands.iter().map(|c| show(&c.bytes())).collect();
     insta::assert_snapshot!(text.join("\n"), @r"
-    G90 G0 X12.500\n
-    G90 G0 Y-3.250\n
-    G90 G0 Z360.000\n
+    G53 G0 X12.500\n
+    G53 G0 Y-3.250\n
+    G53 G0 Z360.000\n
     $HX\n
     $H\n
     $X\n

@@ -255,8 +255,10 @@ fn run_fake(
                         "Idle"
                     };
                     let p = m.pos(now);
+                    let on = seen.lock().unwrap().laser_on;
+                    let (speed, acc) = if on { (1000, "|A:S") } else { (0, "") };
                     send(&format!(
-                        "<{state}|MPos:{:.3},{:.3},{:.3}|FS:0,0|Pn:X>\r\n",
+                        "<{state}|MPos:{:.3},{:.3},{:.3}|FS:0,{speed}|Pn:X|Ov:100,100,100{acc}>\r\n",
                         p[0], p[1], p[2]
                     ));
                 }
@@ -293,8 +295,12 @@ fn answer(
     if let Some(code) = s.reject_next.take() {
         return format!("error:{code}\r\n");
     }
+    if text == "$I" {
+        // A build with single-axis homing (`$HX`).
+        return "[VER:1.1h.20190830:]\r\n[OPT:VH,15,128]\r\nok\r\n".into();
+    }
     if text == "$$" {
-        let mut r = String::new();
+        let mut r = String::from("$10=1\r\n$22=1\r\n$27=1.000\r\n$32=0\r\n");
         for (i, v) in s.steps.iter().enumerate() {
             r += &format!("$10{i}={v:.3}\r\n");
         }
@@ -310,7 +316,8 @@ fn answer(
             "Z" => 2,
             _ => return "error:3\r\n".into(),
         };
-        m.base[i] = 0.0;
+        // Homed: pulled off the switch to machine −$27, in whole steps as GRBL sets it.
+        m.base[i] = -(1.0f64 * 142.222).round() / 142.222;
         m.alarm = false;
         return "ok\r\n".into();
     }
@@ -325,7 +332,7 @@ fn answer(
         seen.lock().unwrap().laser_on = true;
         return "ok\r\n".into();
     }
-    if let Some(rest) = text.strip_prefix("G90 G0 ") {
+    if let Some(rest) = text.strip_prefix("G53 G0 ") {
         if m.alarm {
             return "error:9\r\n".into();
         }
@@ -376,6 +383,8 @@ fn axis(id: &str, letter: &str) -> AxisSpec {
         steps_per_deg: STEPS,
         controller_axis: Some(letter.into()),
         baud: None,
+        home_deg: 0.0,
+        machine_sign: 1.0,
     }
 }
 
@@ -389,6 +398,12 @@ fn controller(fake: &Fake) -> Arc<GrblController> {
     );
     ctl.set_keepalive(false);
     ctl
+}
+
+/// Positions read back carry GRBL's 3-decimal print of a machine coordinate whose home is a
+/// whole number of steps (−0.998439…), so they are within half a thousandth of a degree.
+fn assert_near(got: f64, want: f64) {
+    assert!((got - want).abs() < 1e-3, "{got} is not {want}");
 }
 
 /// The byte stream as one token per line: real-time bytes in `<>`, lines with a visible `\n`.
@@ -420,32 +435,33 @@ async fn byte_streams_of_handshake_home_move_stop_and_laser() {
     let mut x = GrblAxis::new(ctl.clone(), &axis("turntable", "X")).unwrap();
     let mut laser = GrblLaser::new(ctl.clone(), "laser");
 
-    // The handshake (reset, banner, `$$`, `?`), then the position's own `?`.
-    assert_eq!(x.position().await.unwrap(), 5.0);
+    // The handshake (reset, banner, `$I`, `$$`, `?`), then the position's own `?`. Machine 5
+    // is 5.998° before homing: the map puts 0° at machine −`$27` in whole steps (−0.998),
+    // where homing ends.
+    assert_near(x.position().await.unwrap(), 5.998);
     insta::assert_snapshot!(show(&fake.take_bytes()), @r"
     <0x18>
+    $I\n
     $$\n
     <?>
     <?>
     ");
 
-    assert_eq!(x.home().await.unwrap(), 0.0);
+    assert_near(x.home().await.unwrap(), 0.0);
     insta::assert_snapshot!(show(&fake.take_bytes()), @r"
     $HX\n
     <?>
     ");
 
-    assert_eq!(x.move_to(12.5).await.unwrap(), 12.5);
+    assert_near(x.move_to(12.5).await.unwrap(), 12.5);
     insta::assert_snapshot!(show(&fake.take_bytes()), @r"
-    G90 G0 X12.500\n
+    G53 G0 X11.502\n
     <?>
     ");
 
-    assert_eq!(x.stop().await.unwrap(), 12.5);
+    // Nothing moving: a stop only reads the position (a feed hold and reset are for motion).
+    assert_near(x.stop().await.unwrap(), 12.5);
     insta::assert_snapshot!(show(&fake.take_bytes()), @r"
-    <!>
-    <?>
-    <0x18>
     <?>
     ");
 
@@ -455,7 +471,9 @@ async fn byte_streams_of_handshake_home_move_stop_and_laser() {
     assert!(!fake.laser_on());
     insta::assert_snapshot!(show(&fake.take_bytes()), @r"
     M3 S1000\n
+    <?>
     M5\n
+    <?>
     ");
 }
 
@@ -477,7 +495,7 @@ async fn homes_moves_and_reports_positions_through_the_axis_handle() {
     assert!(!ctl.is_homed('X').await);
 
     let handle = AxisHandle::spawn(spec, x);
-    assert_eq!(handle.home().await.unwrap(), 0.0);
+    assert_near(handle.home().await.unwrap(), 0.0);
     assert!(ctl.is_homed('X').await && !ctl.is_homed('Y').await);
     let t0 = Instant::now();
     let p = handle.move_to(40.0).await.unwrap();
@@ -506,7 +524,9 @@ async fn two_axes_queue_their_moves_on_one_controller() {
     assert!((px.unwrap() - 60.0).abs() < 1e-3);
     assert!((py.unwrap() - 90.0).abs() < 1e-3);
     let s = ctl.status("test").await.unwrap();
-    assert_eq!(&s.pos[..2], &[60.0, 90.0]);
+    // The status is in machine coordinates: 60° and 90° are machine 59.002 and 89.002 (home
+    // at −0.998, the pull-off of 1 in whole steps).
+    assert_eq!(&s.pos[..2], &[59.002, 89.002]);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -538,7 +558,7 @@ async fn wrong_steps_per_degree_say_which_setting_to_change() {
     let mut y = GrblAxis::new(controller(&fake), &axis("arc", "Y")).unwrap();
     let e = y.home().await.unwrap_err();
     let text = e.to_string();
-    assert!(matches!(e, DeviceError::Other { .. }), "{text}");
+    assert!(matches!(e, DeviceError::Misconfigured { .. }), "{text}");
     assert!(text.contains("`$101=142.222`"), "{text}");
     assert!(text.starts_with("arc:"), "{text}");
 }
@@ -564,11 +584,11 @@ async fn an_error_reply_is_rejected_with_its_meaning() {
     fake.script().reject_next = Some(20);
     let e = x.move_to(3.0).await.unwrap_err();
     assert!(
-        matches!(&e, DeviceError::Rejected { code: 20, command, .. } if command == "G90 G0 X3.000"),
+        matches!(&e, DeviceError::Rejected { code: 20, command, .. } if command == "G53 G0 X2.002"),
         "{e}"
     );
     // The flow counter was freed by the error: the next line goes through.
-    assert_eq!(x.move_to(3.0).await.unwrap(), 3.0);
+    assert_near(x.move_to(3.0).await.unwrap(), 3.0);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -596,7 +616,7 @@ async fn an_alarm_during_a_move_loses_the_homing() {
         "{e}"
     );
     x.home().await.unwrap();
-    assert_eq!(x.move_to(10.0).await.unwrap(), 10.0);
+    assert_near(x.move_to(10.0).await.unwrap(), 10.0);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -612,13 +632,13 @@ async fn garbage_resynchronises_and_the_position_is_unverified_afterwards() {
     assert!(matches!(e, DeviceError::Protocol { .. }), "{e}");
     assert!(e.to_string().contains("line noise"), "{e}");
     // The next request reconnects with a handshake (soft reset) ...
-    assert_eq!(x.position().await.unwrap(), 20.0);
+    assert_near(x.position().await.unwrap(), 20.0);
     assert_eq!(fake.resets(), 2);
     // ... and refuses to move at a position it has not verified.
     let e = x.move_to(30.0).await.unwrap_err();
     assert!(matches!(e, DeviceError::NotHomed { .. }), "{e}");
     x.home().await.unwrap();
-    assert_eq!(x.move_to(30.0).await.unwrap(), 30.0);
+    assert_near(x.move_to(30.0).await.unwrap(), 30.0);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -672,7 +692,7 @@ async fn stop_during_a_move_keeps_the_position() {
     assert!(e.to_string().contains("interrupted"), "{e}");
     // The reset came in Hold:0: still homed, the position is where it stopped.
     assert!(ctl.is_homed('X').await);
-    assert_eq!(x.position().await.unwrap(), p);
+    assert_near(x.position().await.unwrap(), p);
     assert!((x.move_to(p + 5.0).await.unwrap() - (p + 5.0)).abs() < 1e-3);
 }
 

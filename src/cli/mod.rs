@@ -178,7 +178,7 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
                 .map_err(|e| SessionError::Io(e.to_string()))
         }
         Command::Devices(args) => devices::run(args)
-            .map(|()| 0)
+            .map(|fit| if fit { 0 } else { 1 })
             .map_err(|e| SessionError::Io(e.to_string())),
         Command::Plan {
             script,

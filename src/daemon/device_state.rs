@@ -51,6 +51,10 @@ pub struct LaserState {
     pub interlock_closed: bool,
     /// `closed`, `open`, or `not fitted` (a real rig without interlock wiring: reads closed).
     pub interlock: String,
+    /// What switches the laser off if stagehand dies (`no watchdog: …` when nothing does).
+    pub watchdog: String,
+    /// Seconds after which a relay board's watchdog switches the laser off, if one does.
+    pub watchdog_s: Option<f64>,
 }
 
 /// One camera.
@@ -127,6 +131,17 @@ pub fn laser_state(rig: &Rig) -> Option<LaserState> {
             fitted_nm: s.fitted_nm,
             interlock_closed: s.interlock_closed,
             interlock: interlock.to_string(),
+            watchdog: rig
+                .spec
+                .laser_watchdog()
+                .map(|w| w.describe())
+                .unwrap_or_default(),
+            watchdog_s: match rig.spec.laser_watchdog() {
+                Some(stagehand_devices::rig::LaserWatchdog::Relay { watchdog_s, .. }) => {
+                    Some(watchdog_s)
+                }
+                _ => None,
+            },
         }
     })
 }

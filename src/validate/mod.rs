@@ -42,6 +42,7 @@ pub fn validate(plan: &Plan, rig: &RigSpec) -> Vec<Violation> {
     let mut checker = Checker {
         rig,
         out: Vec::new(),
+        laser_watchdog_warned: false,
     };
     let mut state = RigState::power_on(rig);
     // Where each lamp that is on was last switched on, where the laser was switched on, and
@@ -150,6 +151,8 @@ fn never_fired_message() -> String {
 struct Checker<'a> {
     rig: &'a RigSpec,
     out: Vec<Violation>,
+    /// The laser's missing watchdog was reported (once per plan).
+    laser_watchdog_warned: bool,
 }
 
 impl Checker<'_> {
@@ -324,6 +327,18 @@ impl<'a> Here<'_, 'a> {
                 "laser: the laser is switched on but not armed; add laser_arm before this step"
                     .into(),
             );
+        }
+        let Some(laser) = &self.rig().laser else {
+            return;
+        };
+        if let Some(stagehand_devices::rig::LaserWatchdog::None(why)) = self.rig().laser_watchdog()
+            && !self.checker.laser_watchdog_warned
+        {
+            self.checker.laser_watchdog_warned = true;
+            self.warning(format!(
+                "laser `{}` has no watchdog: {why}; stop the run with stagehand (abort, e-stop), not by killing it",
+                laser.id
+            ));
         }
         let Some(laser) = &self.rig().laser else {
             return;

@@ -192,6 +192,28 @@ pub fn resume(dir: &Path, operator: Arc<dyn Operator>) -> Result<Summary, Sessio
     })
 }
 
+/// Every raw frame's path and decoded pixels, in path order. (Compare pixels, not files: the
+/// files' metadata holds the rig time, which differs between runs in real time.)
+pub fn raw_pixels(dir: &Path) -> Vec<(String, Vec<u16>)> {
+    let conn = db(dir);
+    let mut stmt = conn
+        .prepare("SELECT path FROM frames WHERE kind = 'raw' ORDER BY path")
+        .expect("query");
+    let paths: Vec<String> = stmt
+        .query_map([], |r| r.get(0))
+        .expect("rows")
+        .collect::<Result<_, _>>()
+        .expect("paths");
+    paths
+        .into_iter()
+        .map(|p| {
+            let bytes = std::fs::read(dir.join(&p)).expect("frame file");
+            let png = stagehand::storage::png16::decode_png16(&p, &bytes).expect("decodes");
+            (p, png.pixels)
+        })
+        .collect()
+}
+
 /// Opens a run's index read-only.
 pub fn db(dir: &Path) -> rusqlite::Connection {
     rusqlite::Connection::open_with_flags(

@@ -8,9 +8,6 @@ use crate::axis::AxisDriver;
 use crate::error::{DeviceError, DeviceResult};
 use crate::rig::AxisSpec;
 
-/// Extra time for homing beyond the travel at the homing speed (×1.5): pull-off, locate phase.
-const HOMING_MARGIN_S: f64 = 5.0;
-
 /// The axis `spec.controller_axis` of a shared [`GrblController`].
 pub struct GrblAxis {
     controller: Arc<GrblController>,
@@ -51,12 +48,6 @@ impl GrblAxis {
         self.letter
     }
 
-    /// Time homing may take: the whole travel at the homing speed, ×1.5, plus a margin.
-    pub fn homing_timeout_s(&self) -> f64 {
-        let s = &self.spec;
-        (s.max_deg - s.min_deg).abs() / s.homing_speed_deg_s.max(1e-9) * 1.5 + HOMING_MARGIN_S
-    }
-
     /// Time a feed hold may take to bring the axis to rest from full speed.
     fn decel_timeout_s(&self) -> f64 {
         let s = &self.spec;
@@ -66,10 +57,7 @@ impl GrblAxis {
 
 impl AxisDriver for GrblAxis {
     async fn home(&mut self) -> DeviceResult<f64> {
-        let timeout = self.homing_timeout_s();
-        self.controller
-            .home(&self.spec.id, self.letter, timeout)
-            .await
+        self.controller.home(&self.spec.id, self.letter).await
     }
 
     async fn move_to(&mut self, target_deg: f64) -> DeviceResult<f64> {
@@ -86,10 +74,8 @@ impl AxisDriver for GrblAxis {
     }
 
     async fn position(&mut self) -> DeviceResult<f64> {
-        let s = self.controller.status(&self.spec.id).await?;
-        s.axis(self.letter).ok_or_else(|| DeviceError::Other {
-            device: self.spec.id.clone(),
-            message: format!("no position for axis {}", self.letter),
-        })
+        self.controller
+            .position_deg(&self.spec.id, self.letter)
+            .await
     }
 }

@@ -18,8 +18,9 @@ pub fn axis_index(letter: char) -> Option<usize> {
 }
 
 /// Machine state at the start of a status report.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum State {
+    #[default]
     Idle,
     Run,
     /// `Hold:0` (hold complete, safe to reset) or `Hold:1` (decelerating).
@@ -71,22 +72,35 @@ impl State {
     }
 }
 
-/// Which position a status report carries. Our controllers have no work offset (WCO = 0),
-/// so both are taken as the machine position.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// Which position a status report carries (`$10` bit 0): machine position, or work position
+/// (machine position minus the work coordinate offset `WCO`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum PosKind {
+    #[default]
     Machine,
     Work,
 }
 
-/// A parsed status report (`<Idle|MPos:1.000,2.000,0.000|FS:0,0>`); fields other than the
-/// state and the position are ignored.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// A parsed status report (`<Idle|MPos:1.000,2.000,0.000|FS:0,0|WCO:0.000,0.000,0.000>`).
+/// GRBL sends its optional fields only now and then (`WCO:` every 10–30 reports and after an
+/// offset changes, `Ov:` and `A:` every 10–20 reports and after the spindle changes), so each
+/// is an `Option`; `Bf:` and `Ln:` are ignored.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Status {
     pub state: State,
     /// X, Y, Z in the controller's "mm" (our degrees); further axes are dropped.
     pub pos: [f64; 3],
     pub kind: PosKind,
+    /// `WCO:` work coordinate offset, when the report carries it.
+    pub wco: Option<[f64; 3]>,
+    /// `FS:` current feed rate and spindle speed (`F:` without a spindle value).
+    pub feed: Option<f64>,
+    pub spindle_speed: Option<f64>,
+    /// Whether the spindle output is on, known only from a report with `Ov:` (which carries
+    /// `A:S`/`A:C` exactly when the output is on); `None` without `Ov:`.
+    pub spindle_on: Option<bool>,
+    /// `Pn:` limit switches pressed, X, Y, Z.
+    pub limit_pins: [bool; 3],
 }
 
 impl Status {
@@ -132,8 +146,33 @@ impl Reply {
                     PosKind::Machine => "MPos",
                     PosKind::Work => "WPos",
                 };
-                let [x, y, z] = s.pos;
-                format!("<{}|{key}:{x:.3},{y:.3},{z:.3}|FS:0,0>", s.state.text())
+                let axes = |p: [f64; 3]| format!("{:.3},{:.3},{:.3}", p[0], p[1], p[2]);
+                let mut line = format!("<{}|{key}:{}", s.state.text(), axes(s.pos));
+                let _ = write!(
+                    line,
+                    "|FS:{},{}",
+                    s.feed.unwrap_or(0.0),
+                    s.spindle_speed.unwrap_or(0.0)
+                );
+                if s.limit_pins.contains(&true) {
+                    line.push_str("|Pn:");
+                    for (on, l) in s.limit_pins.iter().zip(AXIS_LETTERS) {
+                        if *on {
+                            line.push(l);
+                        }
+                    }
+                }
+                if let Some(w) = s.wco {
+                    let _ = write!(line, "|WCO:{}", axes(w));
+                }
+                if let Some(on) = s.spindle_on {
+                    line.push_str("|Ov:100,100,100");
+                    if on {
+                        line.push_str("|A:S");
+                    }
+                }
+                line.push('>');
+                line
             }
             Reply::Banner { version } => format!("Grbl {version} ['$' for help]"),
             Reply::Message(m) if m.starts_with('>') => m.clone(),
@@ -188,34 +227,70 @@ pub fn parse_line(line: &str) -> Reply {
 
 fn parse_status(body: &str) -> Option<Status> {
     let mut fields = body.split('|');
-    let state = State::parse(fields.next()?)?;
+    let mut s = Status {
+        state: State::parse(fields.next()?)?,
+        ..Status::default()
+    };
+    let mut have_pos = false;
     for field in fields {
-        let (kind, coords) = if let Some(c) = field.strip_prefix("MPos:") {
-            (PosKind::Machine, c)
-        } else if let Some(c) = field.strip_prefix("WPos:") {
-            (PosKind::Work, c)
-        } else {
+        // The state and the position must be right; an optional field that is garbled (a
+        // noisy line) is dropped rather than costing the whole report.
+        let Some((key, value)) = field.split_once(':') else {
             continue;
         };
-        let mut pos = [0.0; 3];
-        let mut values = coords.split(',');
-        for p in pos.iter_mut() {
-            let v: f64 = values.next()?.trim().parse().ok()?;
-            if !v.is_finite() {
-                return None;
+        match key {
+            "MPos" | "WPos" => {
+                s.kind = if key == "MPos" {
+                    PosKind::Machine
+                } else {
+                    PosKind::Work
+                };
+                s.pos = three(value)?;
+                have_pos = true;
             }
-            *p = v;
+            "WCO" => s.wco = three(value),
+            "FS" => {
+                let (f, sp) = value.split_once(',').unwrap_or((value, ""));
+                s.feed = number(f);
+                s.spindle_speed = number(sp);
+            }
+            "F" => s.feed = number(value),
+            "Ov" => {
+                s.spindle_on.get_or_insert(false);
+            }
+            "A" => s.spindle_on = Some(value.contains(['S', 'C'])),
+            "Pn" => {
+                for (pin, l) in s.limit_pins.iter_mut().zip(AXIS_LETTERS) {
+                    *pin = value.contains(l);
+                }
+            }
+            _ => {}
         }
-        return Some(Status { state, pos, kind });
     }
-    None
+    have_pos.then_some(s)
+}
+
+/// A finite number.
+fn number(text: &str) -> Option<f64> {
+    text.trim().parse::<f64>().ok().filter(|v| v.is_finite())
+}
+
+/// The first three of a comma-separated list of numbers (further axes are dropped).
+fn three(text: &str) -> Option<[f64; 3]> {
+    let mut pos = [0.0; 3];
+    let mut values = text.split(',');
+    for p in pos.iter_mut() {
+        *p = number(values.next()?)?;
+    }
+    Some(pos)
 }
 
 /// A command line for the controller (answered by `ok` or `error:N`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Command {
-    /// `G90 G0 X12.500`: rapid absolute move of one axis, 3 decimals.
-    Move { axis: char, deg: f64 },
+    /// `G53 G0 X-12.500`: rapid move of one axis to a machine coordinate (so work offsets
+    /// set on the controller do not matter), 3 decimals.
+    Move { axis: char, machine: f64 },
     /// `$H` (all axes) or `$HX` (one axis).
     Home(Option<char>),
     /// `$X`: clear an alarm without homing.
@@ -226,15 +301,19 @@ pub enum Command {
     LaserOff,
     /// `$$`: list the settings.
     Settings,
+    /// `$I`: build info (`[VER:...]`, `[OPT:...]`).
+    BuildInfo,
+    /// `$G`: parser state (`[GC:...]`).
+    ParserState,
 }
 
 impl Command {
     /// The command text, without the line end.
     pub fn line(&self) -> String {
         match *self {
-            Command::Move { axis, deg } => {
-                let mut s = String::from("G90 G0 ");
-                let value = if deg.abs() < 0.0005 { 0.0 } else { deg };
+            Command::Move { axis, machine } => {
+                let mut s = String::from("G53 G0 ");
+                let value = if machine.abs() < 0.0005 { 0.0 } else { machine };
                 let _ = write!(s, "{}{value:.3}", axis.to_ascii_uppercase());
                 s
             }
@@ -244,6 +323,8 @@ impl Command {
             Command::LaserOn { power } => format!("M3 S{power}"),
             Command::LaserOff => "M5".into(),
             Command::Settings => "$$".into(),
+            Command::BuildInfo => "$I".into(),
+            Command::ParserState => "$G".into(),
         }
     }
 
@@ -311,7 +392,10 @@ mod tests {
             Reply::Status(Status {
                 state: State::Idle,
                 pos: [1.0, 2.0, 0.0],
-                kind: PosKind::Machine
+                kind: PosKind::Machine,
+                feed: Some(0.0),
+                spindle_speed: Some(0.0),
+                ..Status::default()
             })
         );
     }
@@ -332,6 +416,30 @@ mod tests {
             let line = format!("<{state}|MPos:0,0,0>");
             assert!(matches!(parse_line(&line), Reply::Status(_)), "{line}");
         }
+    }
+
+    #[test]
+    fn status_reads_the_optional_fields_of_real_grbl() {
+        let Reply::Status(s) =
+            parse_line("<Idle|WPos:-6.000,0.000,0.000|FS:0,1000|Pn:Z|WCO:5.000,0.000,0.000>")
+        else {
+            panic!("not a status")
+        };
+        assert_eq!(s.kind, PosKind::Work);
+        assert_eq!(s.wco, Some([5.0, 0.0, 0.0]));
+        assert_eq!((s.feed, s.spindle_speed), (Some(0.0), Some(1000.0)));
+        assert_eq!(s.limit_pins, [false, false, true]);
+        assert_eq!(s.spindle_on, None, "no Ov: field, so the output is unknown");
+        let Reply::Status(s) = parse_line("<Idle|MPos:0,0,0|FS:0,1000|Ov:100,100,100|A:S>") else {
+            panic!("not a status")
+        };
+        assert_eq!(s.spindle_on, Some(true));
+        let Reply::Status(s) = parse_line("<Run|MPos:0,0,0|FS:1800,0|Ov:100,100,100>") else {
+            panic!("not a status")
+        };
+        assert_eq!((s.spindle_on, s.feed), (Some(false), Some(1800.0)));
+        // The emulators print what the parser reads.
+        assert_eq!(parse_line(&Reply::Status(s).to_line()), Reply::Status(s));
     }
 
     #[test]
@@ -358,18 +466,18 @@ mod tests {
         assert_eq!(
             Command::Move {
                 axis: 'x',
-                deg: 12.5
+                machine: -12.5
             }
             .bytes(),
-            b"G90 G0 X12.500\n"
+            b"G53 G0 X-12.500\n"
         );
         assert_eq!(
             Command::Move {
                 axis: 'Z',
-                deg: -0.0001
+                machine: -0.0001
             }
             .line(),
-            "G90 G0 Z0.000"
+            "G53 G0 Z0.000"
         );
         assert_eq!(Command::Home(Some('y')).line(), "$HY");
         assert_eq!(Command::Home(None).line(), "$H");

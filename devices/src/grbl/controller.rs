@@ -7,6 +7,19 @@
 //! Every line received is absorbed into the known state (replies matched to lines by the flow
 //! counter, the last status, alarms, resets), whoever happens to read it.
 //!
+//! **Homing is exclusive.** Real GRBL answers nothing (not even `?`) during a homing cycle, so
+//! a homing cycle holds the activity lock for writing: other requests wait for it, the
+//! keepalive skips, and only one homing command is ever in flight. A stock build homes with
+//! `$H` (every axis, in the firmware's cycles); a build with single-axis homing (`$I` option
+//! `H`) homes one axis with `$HX`. Silence is bounded by a timeout derived from `$13x`,
+//! `$24`, `$25` and `$27`.
+//!
+//! **Machine coordinates.** Moves are `G53 G0` to machine coordinates, so work offsets on the
+//! board do not matter; `WPos` reports are turned into machine positions with the last `WCO`.
+//! Rig degrees map onto machine coordinates through the rig file's `home_deg` and
+//! `machine_sign` ([`MachineMap`]); settings that cannot work for the rig are refused at
+//! connect ([`settings::problems`]).
+//!
 //! **No frame at an unverified position.** The controller's position is trusted only after the
 //! axis was homed on the current connection. Connecting (the first use, and every reconnect
 //! after a lost link, a timeout or garbage) soft-resets the controller and marks every axis not
@@ -18,21 +31,22 @@ use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Weak};
 
-use tokio::sync::{Mutex, MutexGuard};
+use tokio::sync::{Mutex, MutexGuard, RwLock};
 use tokio::time::Instant;
 
-use super::codec::{Command, Realtime, Reply, State, Status, axis_index, parse_line};
+use super::codec::{Command, PosKind, Realtime, Reply, State, Status, axis_index, parse_line};
 use super::codes::{alarm_meaning, error_meaning};
 use super::flow::Flow;
+use super::settings::{self, BuildInfo, MachineMap, Settings};
 use crate::clock::duration_s;
 use crate::error::{DeviceError, DeviceResult};
 use crate::motion::move_duration_s;
 use crate::rig::AxisSpec;
 use crate::serial_link::SerialLink;
 
-/// Wait for the banner after a soft reset.
 /// How far a move's deadline is pushed out each time the controller is seen moving.
 const MOVE_PROGRESS_S: f64 = 5.0;
+/// Wait for the banner after a soft reset.
 const BANNER_TIMEOUT_S: f64 = 2.0;
 /// Quiet time that ends the messages following a banner (`[MSG:...]`, `ALARM:3`).
 const DRAIN_S: f64 = 0.1;
@@ -42,12 +56,17 @@ const REPLY_TIMEOUT_S: f64 = 1.0;
 const WRITE_TIMEOUT_S: f64 = 1.0;
 /// Longest single read while waiting, so the lock is released regularly.
 const SLICE_S: f64 = 0.05;
-/// Interval of status polls while a move or a feed hold runs.
-const POLL_S: f64 = 0.05;
+/// Interval of status polls while a move or a feed hold runs (GRBL's documentation asks for
+/// no more than 5–10 Hz); concurrent waits share a report this fresh.
+const POLL_S: f64 = 0.1;
 /// Polls in a row reporting Idle away from the target before a move is declared lost.
 const IDLE_AWAY_POLLS: u32 = 10;
-/// Keepalive period: well inside the emulated 3 s watchdog.
+/// A `?` unanswered this long is sent again (a byte lost on the line, a reset meanwhile).
+const RESEND_S: f64 = 0.25;
+/// Keepalive period: notices a dead port while nobody talks.
 const KEEPALIVE_S: f64 = 0.5;
+/// Status reports to wait for one carrying `Ov:` (GRBL sends it at least every 20).
+const OV_REPORTS: u32 = 25;
 /// Replies kept for lines whose sender gave up waiting (cancelled futures).
 const DONE_KEPT: u64 = 64;
 /// Line ends of GRBL output (`\r\n`; either alone is accepted).
@@ -60,9 +79,24 @@ pub struct GrblController {
     /// Ids of the configured axes and their letters (fixed at construction).
     axes: Vec<(char, String)>,
     conn: Mutex<Conn>,
+    /// Read-held by every request, write-held by a homing cycle (see the module docs).
+    activity: RwLock<()>,
+    /// A homing line is in flight: a stop must reset instead of polling.
+    homing_now: AtomicBool,
+    /// A laser is switched by this controller's spindle output (checked against `$32`).
+    has_laser: AtomicBool,
     keepalive_enabled: AtomicBool,
     keepalive_started: AtomicBool,
     me: Weak<GrblController>,
+}
+
+/// Clears [`GrblController::homing_now`] however the homing future ends.
+struct HomingFlag<'a>(&'a AtomicBool);
+
+impl Drop for HomingFlag<'_> {
+    fn drop(&mut self) {
+        self.0.store(false, Ordering::SeqCst);
+    }
 }
 
 impl GrblController {
@@ -80,6 +114,9 @@ impl GrblController {
             port: port.to_string(),
             axes: axes.iter().map(|(l, a)| (*l, a.id.clone())).collect(),
             conn: Mutex::new(Conn::new(device_label, port, baud, axes)),
+            activity: RwLock::new(()),
+            homing_now: AtomicBool::new(false),
+            has_laser: AtomicBool::new(false),
             keepalive_enabled: AtomicBool::new(true),
             keepalive_started: AtomicBool::new(false),
             me: me.clone(),
@@ -96,6 +133,12 @@ impl GrblController {
         &self.port
     }
 
+    /// Records that a laser is switched by the spindle output, so laser mode (`$32=1`, which
+    /// keeps the output off while idle) is refused at connect.
+    pub fn attach_laser(&self) {
+        self.has_laser.store(true, Ordering::Relaxed);
+    }
+
     /// Switches the idle keepalive (`?` every 0.5 s while nobody talks) on or off; it is on by
     /// default. Off only for tests that record the exact byte stream.
     pub fn set_keepalive(&self, on: bool) {
@@ -108,6 +151,19 @@ impl GrblController {
         axis_index(letter).is_some_and(|i| c.ready() && c.homed[i] && !c.in_alarm)
     }
 
+    /// Connects (soft reset, banner, `$I`, `$$` and the rig checks) and returns the board's
+    /// build info; a board whose settings cannot work for the rig is `Misconfigured`.
+    pub async fn connect(&self) -> DeviceResult<BuildInfo> {
+        let _busy = self.activity.read().await;
+        let c = self.ready_conn().await?;
+        Ok(c.build.clone())
+    }
+
+    /// The board's build info (`$I`) as read at the last connect.
+    pub async fn build_info(&self) -> BuildInfo {
+        self.conn.lock().await.build.clone()
+    }
+
     /// True if `spec` is one of the axes this controller was built with, under its letter.
     pub(crate) fn serves(&self, spec: &AxisSpec, letter: char) -> bool {
         self.axes
@@ -115,11 +171,26 @@ impl GrblController {
             .any(|(l, id)| *l == letter && *id == spec.id)
     }
 
-    /// Reads the status report (`?`), connecting first if needed.
+    /// Reads the status report (`?`), connecting first if needed. Positions are machine
+    /// coordinates.
     pub async fn status(&self, device: &str) -> DeviceResult<Status> {
         let r = async {
+            let _busy = self.activity.read().await;
             let mut c = self.ready_conn().await?;
             c.query_status().await
+        }
+        .await;
+        r.map_err(|e| named(e, device))
+    }
+
+    /// The rig angle of axis `letter`, read from a fresh status report.
+    pub async fn position_deg(&self, device: &str, letter: char) -> DeviceResult<f64> {
+        let r = async {
+            let idx = index(letter, &self.label)?;
+            let _busy = self.activity.read().await;
+            let mut c = self.ready_conn().await?;
+            let s = c.query_status().await?;
+            Ok(c.to_deg(idx, s.pos[idx]))
         }
         .await;
         r.map_err(|e| named(e, device))
@@ -128,35 +199,118 @@ impl GrblController {
     /// Sends one command line and waits for its `ok` (an `error:N` is `Rejected`).
     pub async fn command(&self, device: &str, cmd: Command, timeout_s: f64) -> DeviceResult<()> {
         let r = async {
-            let deadline = Instant::now() + duration_s(timeout_s);
-            let (seq, epoch, alarms) = {
-                let mut c = self.ready_conn().await?;
-                let seq = c.send_line(&cmd, deadline, timeout_s).await?;
-                (seq, c.resets, c.alarm_events)
-            };
-            self.wait_reply(seq, epoch, alarms, &cmd, deadline, timeout_s)
-                .await
+            let _busy = self.activity.read().await;
+            self.command_inner(&cmd, timeout_s).await
         }
         .await;
         r.map_err(|e| named(e, device))
     }
 
-    /// Homes the axis `letter` (`$HX`) and returns its machine position afterwards (0).
-    pub async fn home(&self, device: &str, letter: char, timeout_s: f64) -> DeviceResult<f64> {
+    async fn command_inner(&self, cmd: &Command, timeout_s: f64) -> DeviceResult<()> {
+        let deadline = Instant::now() + duration_s(timeout_s);
+        let (seq, epoch, alarms) = {
+            let mut c = self.ready_conn().await?;
+            let seq = c.send_line(cmd, deadline, timeout_s).await?;
+            (seq, c.resets, c.alarm_events)
+        };
+        self.wait_reply(seq, epoch, alarms, cmd, deadline, timeout_s)
+            .await
+    }
+
+    /// Switches the spindle output (the laser) with `M3 S<power>` or `M5`, then confirms the
+    /// output state from the status reports (`A:S` with `Ov:`, and the `FS:` spindle speed):
+    /// a laser that does not follow is [`DeviceError::LaserNotSwitched`].
+    pub async fn switch_spindle(
+        &self,
+        device: &str,
+        on: bool,
+        power: u32,
+        timeout_s: f64,
+    ) -> DeviceResult<()> {
+        let r = async {
+            let _busy = self.activity.read().await;
+            let cmd = if on {
+                Command::LaserOn { power }
+            } else {
+                Command::LaserOff
+            };
+            self.command_inner(&cmd, timeout_s).await?;
+            let mut c = self.ready_conn().await?;
+            let seen = c.ov_reports;
+            for _ in 0..OV_REPORTS {
+                let s = c.query_status().await?;
+                if c.ov_reports == seen {
+                    continue;
+                }
+                let output = c.spindle_on.unwrap_or(false);
+                let speed = s.spindle_speed.unwrap_or(if output { 1.0 } else { 0.0 });
+                if output == on && (speed > 0.0) == on {
+                    return Ok(());
+                }
+                let wanted = if on { "on" } else { "off" };
+                return Err(DeviceError::LaserNotSwitched {
+                    device: device.to_string(),
+                    wanted,
+                    reason: format!(
+                        "after `{}` the controller on {} reports the spindle output {} at speed {speed}",
+                        cmd.line(),
+                        self.port,
+                        if output { "on (A:S)" } else { "off" },
+                    ),
+                });
+            }
+            Err(c.link.protocol(format!(
+                "no status report with `Ov:` in {OV_REPORTS} reports after `{}`, so the laser output cannot be verified",
+                cmd.line()
+            )))
+        }
+        .await;
+        r.map_err(|e| named(e, device))
+    }
+
+    /// Homes the axis `letter` and returns its rig angle afterwards (`home_deg`). A build with
+    /// single-axis homing homes only this axis (`$HX`); a stock build homes every axis (`$H`).
+    /// An axis homed on this connection and not moved since is already home: nothing is sent.
+    pub async fn home(&self, device: &str, letter: char) -> DeviceResult<f64> {
         let r = async {
             let idx = index(letter, &self.label)?;
-            let cmd = Command::Home(Some(letter));
-            let deadline = Instant::now() + duration_s(timeout_s);
-            let (seq, epoch, alarms) = {
-                let mut c = self.ready_conn().await?;
-                let seq = c.send_line(&cmd, deadline, timeout_s).await?;
-                (seq, c.resets, c.alarm_events)
+            let _exclusive = self.activity.write().await;
+            let mut c = self.ready_conn().await?;
+            if c.homed[idx] && !c.in_alarm && !c.moved_since_home[idx] {
+                let s = c.query_status().await?;
+                return Ok(c.to_deg(idx, s.pos[idx]));
+            }
+            let single = c.build.single_axis_homing();
+            let mask = if single {
+                let mut m = [false; 3];
+                m[idx] = true;
+                m
+            } else {
+                [true; 3]
             };
-            self.wait_reply(seq, epoch, alarms, &cmd, deadline, timeout_s)
-                .await?;
+            let cmd = Command::Home(single.then_some(letter));
+            let timeout_s = c.settings.homing_bound_s(mask);
+            let deadline = Instant::now() + duration_s(timeout_s);
+            self.homing_now.store(true, Ordering::SeqCst);
+            let _flag = HomingFlag(&self.homing_now);
+            let seq = c.send_line(&cmd, deadline, timeout_s).await?;
+            let (epoch, alarms) = (c.resets, c.alarm_events);
+            drop(c);
+            let r = self
+                .wait_reply(seq, epoch, alarms, &cmd, deadline, timeout_s)
+                .await;
+            drop(_flag);
             let mut c = self.conn.lock().await;
-            c.check_continuity(epoch, alarms, &cmd)?;
-            c.homed[idx] = true;
+            let r = r.and_then(|()| c.check_continuity(epoch, alarms, &cmd));
+            if let Err(e) = r {
+                return Err(homing_error(e, &cmd, mask, &self.port));
+            }
+            for (i, on) in mask.iter().enumerate() {
+                if *on {
+                    c.homed[i] = true;
+                    c.moved_since_home[i] = false;
+                }
+            }
             c.in_alarm = false;
             c.motion_end = None;
             let s = c.query_status().await?;
@@ -166,15 +320,15 @@ impl GrblController {
                     cmd.line()
                 )));
             }
-            Ok(s.pos[idx])
+            Ok(c.to_deg(idx, s.pos[idx]))
         }
         .await;
         r.map_err(|e| named(e, device))
     }
 
-    /// Moves axis `letter` of `spec` to `target_deg` (`G90 G0`), waits until the controller
-    /// reports Idle at the target, and returns the position reached. Fails with `NotHomed`
-    /// unless the axis was homed on this connection.
+    /// Moves axis `letter` of `spec` to `target_deg` (`G53 G0` to its machine coordinate),
+    /// waits until the controller reports Idle at the target, and returns the angle reached.
+    /// Fails with `NotHomed` unless the axis was homed on this connection.
     pub async fn move_axis(
         &self,
         device: &str,
@@ -182,7 +336,11 @@ impl GrblController {
         letter: char,
         target_deg: f64,
     ) -> DeviceResult<f64> {
-        let r = self.move_inner(device, spec, letter, target_deg).await;
+        let r = async {
+            let _busy = self.activity.read().await;
+            self.move_inner(device, spec, letter, target_deg).await
+        }
+        .await;
         r.map_err(|e| named(e, device))
     }
 
@@ -193,10 +351,13 @@ impl GrblController {
             return e;
         }
         let mut c = self.conn.lock().await;
-        let pos = match c.query_status().await {
-            Ok(s) => Some(s.pos[idx]),
-            Err(_) => c.last_status.map(|s| s.pos[idx]),
+        // A hard limit is critical: GRBL answers no `?` until a reset, so the last report tells.
+        let fresh = if c.critical {
+            None
+        } else {
+            c.query_status().await.ok()
         };
+        let pos = fresh.or(c.last_status).map(|s| c.to_deg(idx, s.pos[idx]));
         c.alarm_error(pos)
     }
 
@@ -214,30 +375,42 @@ impl GrblController {
                 message: format!("target {target_deg} is not a number"),
             });
         }
-        let cmd = Command::Move {
-            axis: letter,
-            deg: target_deg,
-        };
-        let sent = (target_deg * 1000.0).round() / 1000.0;
         // One and a half microsteps, plus the rounding of the 3-decimal report.
         let tolerance = 1.5 / spec.steps_per_deg.max(1e-9) + 0.0005;
-        let (seq, epoch, alarms, deadline, timeout_s) = {
+        let (cmd, sent, seq, epoch, alarms, deadline, timeout_s) = {
             let mut c = self.ready_conn().await?;
             if !c.homed[idx] || c.in_alarm {
                 return Err(DeviceError::NotHomed {
                     device: device.to_string(),
                 });
             }
+            let machine = c.to_machine(idx, target_deg);
+            let cmd = Command::Move {
+                axis: letter,
+                machine,
+            };
+            let sent = (machine * 1000.0).round() / 1000.0;
             let now = Instant::now();
-            let from = c.last_status.map_or(target_deg, |s| s.pos[idx]);
+            let from = c
+                .last_status
+                .map_or(target_deg, |s| c.to_deg(idx, s.pos[idx]));
             let physics = move_duration_s(from, target_deg, spec.kinematics(), 0.0) * 1.5 + 2.0;
             // Moves of one controller run one after another: ours starts when the queue ends.
             let start = c.motion_end.filter(|t| *t > now).unwrap_or(now);
             let deadline = start + duration_s(physics);
             c.motion_end = Some(deadline);
             let timeout_s = (deadline - now).as_secs_f64();
+            c.moved_since_home[idx] = true;
             let seq = c.send_line(&cmd, deadline, timeout_s).await?;
-            (seq, c.resets, c.alarm_events, deadline, timeout_s)
+            (
+                cmd,
+                sent,
+                seq,
+                c.resets,
+                c.alarm_events,
+                deadline,
+                timeout_s,
+            )
         };
         if let Err(e) = self
             .wait_reply(seq, epoch, alarms, &cmd, deadline, timeout_s)
@@ -252,15 +425,16 @@ impl GrblController {
         let mut deadline = deadline;
         let mut last_pos: Option<[f64; 3]> = None;
         loop {
-            let s = {
+            let (s, deg) = {
                 let mut c = self.conn.lock().await;
                 c.check_continuity(epoch, alarms, &cmd)?;
-                let s = c.query_status().await?;
+                let s = c.fresh_status(POLL_S).await?;
+                let deg = c.to_deg(idx, s.pos[idx]);
                 if c.alarm_events != alarms || s.state == State::Alarm {
-                    return Err(c.alarm_error(Some(s.pos[idx])));
+                    return Err(c.alarm_error(Some(deg)));
                 }
                 c.check_continuity(epoch, alarms, &cmd)?;
-                s
+                (s, deg)
             };
             let pos = s.pos[idx];
             if s.state == State::Run && last_pos.is_some_and(|p| p != s.pos) {
@@ -270,13 +444,13 @@ impl GrblController {
             last_pos = Some(s.pos);
             if s.state == State::Idle {
                 if (pos - sent).abs() <= tolerance {
-                    return Ok(pos);
+                    return Ok(deg);
                 }
                 idle_away += 1;
                 if idle_away >= IDLE_AWAY_POLLS {
                     let c = self.conn.lock().await;
                     return Err(c.link.protocol(format!(
-                        "controller is Idle at {letter}{pos:.3} after `{}`; the move was lost",
+                        "controller is Idle at machine {letter}{pos:.3} after `{}`; the move was lost",
                         cmd.line()
                     )));
                 }
@@ -294,9 +468,11 @@ impl GrblController {
         }
     }
 
-    /// Stops all motion of the controller: feed hold, wait until the hold is complete (at most
-    /// `decel_timeout_s`), then soft reset (which empties the planner; the position is kept
-    /// because the reset comes in `Hold:0`). Returns the machine position of `letter`.
+    /// Stops all motion of the controller and returns the rig angle of `letter`. Nothing
+    /// moving: nothing is sent but `?`. Moving: feed hold, wait until the hold is complete (at
+    /// most `decel_timeout_s`), then soft reset (which empties the planner; the position is
+    /// kept because the reset comes in `Hold:0`). Homing: soft reset at once (GRBL answers
+    /// nothing while it homes; the axes must be homed again).
     pub async fn stop(
         &self,
         device: &str,
@@ -310,28 +486,56 @@ impl GrblController {
                 // Connecting soft-resets the controller, which stops it as well.
                 drop(c);
                 let mut c = self.ready_conn().await?;
-                return Ok(c.query_status().await?.pos[idx]);
+                let s = c.query_status().await?;
+                return Ok(c.to_deg(idx, s.pos[idx]));
+            }
+            if self.homing_now.load(Ordering::SeqCst) {
+                c.expect_reset = Some(ResetCause::Reconnect);
+                c.send_realtime(Realtime::SoftReset).await?;
+                c.homed = [false; 3];
+                c.await_banner(false).await?;
+                let s = c.query_status().await?;
+                return Ok(c.to_deg(idx, s.pos[idx]));
+            }
+            let now = Instant::now();
+            let queued = c.motion_end.is_some_and(|t| t > now) || c.flow.lines_in_flight() > 0;
+            let s = c.query_status().await?;
+            if s.state == State::Idle && !queued {
+                return Ok(c.to_deg(idx, s.pos[idx]));
             }
             c.send_realtime(Realtime::FeedHold).await?;
             let deadline = Instant::now() + duration_s(decel_timeout_s);
+            let mut last: Option<[f64; 3]> = None;
+            let mut still = 0;
             loop {
                 let s = c.query_status().await?;
-                let held = matches!(
-                    s.state,
-                    State::Hold(0)
-                        | State::Idle
-                        | State::Alarm
-                        | State::Door(_)
-                        | State::Sleep
-                        | State::Check
-                );
+                // A hold with nothing moving may stay `Hold:1`: standing still for three polls
+                // in a row counts as held (a reset while decelerating would lose the position).
+                still = if matches!(s.state, State::Hold(_)) && last == Some(s.pos) {
+                    still + 1
+                } else {
+                    0
+                };
+                let standing = still >= 3;
+                let held = standing
+                    || matches!(
+                        s.state,
+                        State::Hold(0)
+                            | State::Idle
+                            | State::Alarm
+                            | State::Door(_)
+                            | State::Sleep
+                            | State::Check
+                    );
                 if held || Instant::now() >= deadline {
                     break;
                 }
+                last = Some(s.pos);
                 tokio::time::sleep(duration_s(POLL_S)).await;
             }
             c.soft_reset().await?;
-            Ok(c.query_status().await?.pos[idx])
+            let s = c.query_status().await?;
+            Ok(c.to_deg(idx, s.pos[idx]))
         }
         .await;
         r.map_err(|e| named(e, device))
@@ -341,8 +545,10 @@ impl GrblController {
     async fn ready_conn(&self) -> DeviceResult<MutexGuard<'_, Conn>> {
         let mut c = self.conn.lock().await;
         if !c.ready() {
-            c.handshake().await?;
+            c.handshake(self.has_laser.load(Ordering::Relaxed)).await?;
             self.start_keepalive();
+        } else if c.critical {
+            c.reset_after_critical_alarm().await?;
         }
         Ok(c)
     }
@@ -380,8 +586,8 @@ impl GrblController {
     }
 }
 
-/// Polls `?` every 0.5 s while nobody else talks, so the controller's watchdog keeps the laser
-/// lease and a dead port is noticed (and reconnected on the next request). Ends when the
+/// Polls `?` every 0.5 s while nobody else talks, so a dead port is noticed (and reconnected on
+/// the next request). GRBL has no watchdog: this keeps no laser lease. Ends when the
 /// controller is dropped.
 async fn keepalive(me: Weak<GrblController>) {
     loop {
@@ -390,10 +596,18 @@ async fn keepalive(me: Weak<GrblController>) {
         if !ctl.keepalive_enabled.load(Ordering::Relaxed) {
             continue;
         }
+        // Never during homing: GRBL answers nothing then, and a `?` would look like a dead port.
+        let Ok(_busy) = ctl.activity.try_read() else {
+            continue;
+        };
+        if ctl.homing_now.load(Ordering::SeqCst) {
+            continue;
+        }
         let Ok(mut c) = ctl.conn.try_lock() else {
             continue;
         };
         if c.ready()
+            && !c.critical
             && c.last_io.elapsed().as_secs_f64() >= KEEPALIVE_S * 0.9
             && let Err(e) = c.query_status().await
         {
@@ -425,9 +639,14 @@ struct Conn {
     /// Replies to lines whose sender has not collected them yet: `Err(code)` for `error:N`.
     done: BTreeMap<u64, Result<(), u32>>,
     last_status: Option<Status>,
-    /// `?` sent whose report has not arrived yet.
-    status_outstanding: u32,
+    /// Status reports received on this connection, and when the last one came.
+    status_reports: u64,
+    last_status_at: Option<Instant>,
     in_alarm: bool,
+    /// A critical alarm (hard or soft limit, `ALARM:1/2/10`): only a reset is answered.
+    critical: bool,
+    /// GRBL printed `[MSG:Reset to continue]`: it now listens for the reset.
+    reset_invited: bool,
     alarm_events: u64,
     last_alarm: u32,
     /// Counts resets and reconnects: lines and moves queued before one are gone.
@@ -437,7 +656,17 @@ struct Conn {
     /// Why `resets` last went up.
     last_reset: ResetCause,
     homed: [bool; 3],
-    settings: BTreeMap<u32, f64>,
+    /// Commanded to move since it was homed (so a homing request must really home).
+    moved_since_home: [bool; 3],
+    settings: Settings,
+    build: BuildInfo,
+    /// Rig degrees ↔ machine coordinates per controller axis (after the handshake).
+    maps: [Option<MachineMap>; 3],
+    /// Last work coordinate offset reported (`WCO:`), to turn `WPos` into machine positions.
+    wco: [f64; 3],
+    /// Status reports seen with `Ov:`, and the spindle output state they carried.
+    ov_reports: u64,
+    spindle_on: Option<bool>,
     last_io: Instant,
     /// Estimated latest end of the queued motion (moves run one after another).
     motion_end: Option<Instant>,
@@ -453,15 +682,24 @@ impl Conn {
             writing: false,
             done: BTreeMap::new(),
             last_status: None,
-            status_outstanding: 0,
+            status_reports: 0,
+            last_status_at: None,
             in_alarm: false,
+            critical: false,
+            reset_invited: false,
             alarm_events: 0,
             last_alarm: 0,
             resets: 0,
             expect_reset: None,
             last_reset: ResetCause::Reconnect,
             homed: [false; 3],
-            settings: BTreeMap::new(),
+            moved_since_home: [true; 3],
+            settings: Settings::default(),
+            build: BuildInfo::default(),
+            maps: [None; 3],
+            wco: [0.0; 3],
+            ov_reports: 0,
+            spindle_on: None,
             last_io: Instant::now(),
             motion_end: None,
         }
@@ -471,33 +709,39 @@ impl Conn {
         self.connected && self.link.is_open() && !self.writing
     }
 
-    /// Opens the link, soft-resets the controller, checks the banner and `$100..$102`, and
-    /// reads the status. Every axis is not homed afterwards.
-    async fn handshake(&mut self) -> DeviceResult<()> {
+    /// Opens the link, soft-resets the controller, checks the banner, reads `$I` and `$$`,
+    /// refuses settings that cannot work for the rig, and reads the status. Every axis is not
+    /// homed afterwards.
+    async fn handshake(&mut self, has_laser: bool) -> DeviceResult<()> {
         self.connected = false;
         self.writing = false;
         self.link.open()?;
         self.forget_controller_state(ResetCause::Reconnect);
         self.homed = [false; 3];
+        self.moved_since_home = [true; 3];
         self.in_alarm = false;
         self.expect_reset = Some(ResetCause::Reconnect);
         self.send_realtime(Realtime::SoftReset).await?;
         self.await_banner(true).await?;
-        self.settings.clear();
-        let deadline = Instant::now() + duration_s(REPLY_TIMEOUT_S);
-        let cmd = Command::Settings;
-        let seq = self.send_line(&cmd, deadline, REPLY_TIMEOUT_S).await?;
-        loop {
-            if let Some(r) = self.done.remove(&seq) {
-                r.map_err(|code| self.rejected(&cmd, code))?;
-                break;
-            }
-            if Instant::now() >= deadline {
-                return Err(self.deaf("$$", REPLY_TIMEOUT_S));
-            }
-            self.pump(SLICE_S, "$$").await?;
+        self.build = BuildInfo::default();
+        self.exchange(Command::BuildInfo).await?;
+        self.settings = Settings::default();
+        self.exchange(Command::Settings).await?;
+        let problems = settings::problems(&self.settings, &self.build, &self.axes, has_laser);
+        if !problems.is_empty() {
+            let e = DeviceError::Misconfigured {
+                device: self.link.device().to_string(),
+                port: self.link.path().to_string(),
+                problems: problems.join("; "),
+            };
+            self.link.close();
+            return Err(e);
         }
-        self.check_steps()?;
+        for (letter, spec) in &self.axes {
+            if let Some(i) = axis_index(*letter) {
+                self.maps[i] = Some(MachineMap::new(spec, i, &self.settings, &self.build));
+            }
+        }
         let s = self.query_status().await?;
         if s.state == State::Alarm {
             tracing::info!(
@@ -509,35 +753,58 @@ impl Conn {
         Ok(())
     }
 
-    /// Checks `$100..$102` against the configured axes' `steps_per_deg`.
-    fn check_steps(&mut self) -> DeviceResult<()> {
-        for (letter, spec) in &self.axes {
-            let Some(i) = axis_index(*letter) else {
-                continue;
-            };
-            let n = 100 + i as u32;
-            let want = spec.steps_per_deg;
-            let problem = match self.settings.get(&n) {
-                None => Some(format!("the controller did not report `${n}`")),
-                Some(v) if (v - want).abs() > 1e-3 * want.abs() => {
-                    Some(format!("`${n}` is {v} (steps per degree of axis {letter})"))
+    /// Sends one line during the handshake and waits for its `ok`.
+    async fn exchange(&mut self, cmd: Command) -> DeviceResult<()> {
+        let line = cmd.line();
+        let deadline = Instant::now() + duration_s(REPLY_TIMEOUT_S);
+        let seq = self.send_line(&cmd, deadline, REPLY_TIMEOUT_S).await?;
+        loop {
+            if let Some(r) = self.done.remove(&seq) {
+                return r.map_err(|code| self.rejected(&cmd, code));
+            }
+            if Instant::now() >= deadline {
+                return Err(self.deaf(&line, REPLY_TIMEOUT_S));
+            }
+            self.pump(SLICE_S, &line).await?;
+        }
+    }
+
+    /// Rig angle of machine coordinate `machine` on controller axis `idx`.
+    fn to_deg(&self, idx: usize, machine: f64) -> f64 {
+        self.maps[idx].map_or(machine, |m| m.to_deg(machine))
+    }
+
+    /// Machine coordinate of rig angle `deg` on controller axis `idx`.
+    fn to_machine(&self, idx: usize, deg: f64) -> f64 {
+        self.maps[idx].map_or(deg, |m| m.to_machine(deg))
+    }
+
+    /// After ALARM:1/2/10 GRBL takes nothing but a reset (not even `?`), and only once it has
+    /// printed `[MSG:Reset to continue]`: it clears a reset that came earlier. So: wait for
+    /// that message (briefly), reset, and reset once more if no banner follows.
+    async fn reset_after_critical_alarm(&mut self) -> DeviceResult<()> {
+        let request = "the `[MSG:Reset to continue]` after a critical alarm";
+        let deadline = Instant::now() + duration_s(REPLY_TIMEOUT_S);
+        while !self.reset_invited && Instant::now() < deadline {
+            self.pump(SLICE_S, request).await?;
+        }
+        let mut tries = 0;
+        loop {
+            self.expect_reset = Some(ResetCause::Reconnect);
+            self.send_realtime(Realtime::SoftReset).await?;
+            match self.await_banner(false).await {
+                Err(DeviceError::Timeout { .. }) if tries == 0 && self.link.is_open() => {
+                    tries += 1;
                 }
-                Some(_) => None,
-            };
-            if let Some(problem) = problem {
-                let e = DeviceError::Other {
-                    device: self.link.device().to_string(),
-                    message: format!(
-                        "{problem} on {} but axis `{}` has steps_per_deg {want}; send `${n}={want:.3}` to the controller or fix the rig file",
-                        self.link.path(),
-                        spec.id
-                    ),
-                };
-                self.link.close();
-                return Err(e);
+                Err(DeviceError::Timeout { .. }) if tries == 0 => {
+                    // `deaf` closed the link: reopen it for the second reset.
+                    tries += 1;
+                    self.link.open()?;
+                    self.connected = true;
+                }
+                r => return r,
             }
         }
-        Ok(())
     }
 
     /// Sends 0x18 and waits for the banner; the position survives (a reset in `Hold:0`).
@@ -591,22 +858,12 @@ impl Conn {
     /// Sends `?` and waits for the report (and any older ones still due).
     async fn query_status(&mut self) -> DeviceResult<Status> {
         let deadline = Instant::now() + duration_s(REPLY_TIMEOUT_S);
-        let mut epoch = self.resets;
-        let mut resent = false;
+        let epoch = self.resets;
+        let seen = self.status_reports;
+        let mut asked = Instant::now();
         self.send_realtime(Realtime::Status).await?;
-        self.status_outstanding += 1;
         loop {
-            if self.resets != epoch {
-                // The controller reset meanwhile and dropped the `?`: ask once more.
-                if resent {
-                    return Err(self.link.protocol("the controller keeps resetting"));
-                }
-                resent = true;
-                epoch = self.resets;
-                self.send_realtime(Realtime::Status).await?;
-                self.status_outstanding += 1;
-            }
-            if self.status_outstanding == 0
+            if self.status_reports > seen
                 && let Some(s) = self.last_status
             {
                 return Ok(s);
@@ -615,9 +872,27 @@ impl Conn {
             if now >= deadline {
                 return Err(self.deaf("? (status report)", REPLY_TIMEOUT_S));
             }
-            let slice = (deadline - now).as_secs_f64();
+            if self.resets != epoch && now.duration_since(asked).as_secs_f64() >= RESEND_S / 4.0
+                || now.duration_since(asked).as_secs_f64() >= RESEND_S
+            {
+                // A reset dropped the `?`, or the byte was lost on the line: ask again.
+                asked = now;
+                self.send_realtime(Realtime::Status).await?;
+            }
+            let slice = (deadline - now).as_secs_f64().min(RESEND_S / 4.0);
             self.pump(slice, "? (status report)").await?;
         }
+    }
+
+    /// The last status report if it is younger than `max_age_s`, else a new one: moves of
+    /// several axes waiting at once share the reports instead of each polling.
+    async fn fresh_status(&mut self, max_age_s: f64) -> DeviceResult<Status> {
+        if let (Some(s), Some(at)) = (self.last_status, self.last_status_at)
+            && at.elapsed().as_secs_f64() < max_age_s
+        {
+            return Ok(s);
+        }
+        self.query_status().await
     }
 
     /// Writes a command line once it fits the controller's buffer; returns its sequence number.
@@ -688,6 +963,19 @@ impl Conn {
     }
 
     fn absorb_or_resync(&mut self, reply: Reply, request: &str) -> DeviceResult<()> {
+        if let Reply::Other(text) = &reply
+            && text.starts_with('<')
+            && text.ends_with('>')
+        {
+            // A status report garbled inside its brackets (line noise): the framing held, so
+            // nothing else was lost; drop it, and the `?` is asked again.
+            tracing::warn!(
+                "{}: garbled status report `{}` dropped",
+                self.link.device(),
+                text.chars().take(80).collect::<String>()
+            );
+            return Ok(());
+        }
         if let Reply::Other(text) = &reply {
             let e = self.link.protocol(format!(
                 "`{}` is not GRBL 1.1 output (while waiting for `{request}`)",
@@ -719,6 +1007,8 @@ impl Conn {
             }
             Reply::Alarm(code) => {
                 self.in_alarm = true;
+                self.critical = matches!(code, 1 | 2 | 10);
+                self.reset_invited = false;
                 self.alarm_events += 1;
                 self.last_alarm = code;
                 self.homed = [false; 3];
@@ -729,13 +1019,31 @@ impl Conn {
                     alarm_meaning(code)
                 );
             }
-            Reply::Status(s) => {
+            Reply::Status(mut s) => {
                 if s.state == State::Alarm {
                     self.in_alarm = true;
                     self.homed = [false; 3];
                 }
+                if let Some(w) = s.wco {
+                    self.wco = w;
+                }
+                if s.kind == PosKind::Work {
+                    for (p, w) in s.pos.iter_mut().zip(self.wco) {
+                        *p += w;
+                    }
+                    s.kind = PosKind::Machine;
+                }
+                if s.state == State::Idle && self.flow.lines_in_flight() == 0 {
+                    // Idle with no line pending: nothing is queued any more.
+                    self.motion_end = None;
+                }
+                if s.spindle_on.is_some() {
+                    self.ov_reports += 1;
+                    self.spindle_on = s.spindle_on;
+                }
                 self.last_status = Some(s);
-                self.status_outstanding = self.status_outstanding.saturating_sub(1);
+                self.status_reports += 1;
+                self.last_status_at = Some(Instant::now());
             }
             Reply::Banner { .. } => {
                 let cause = self.expect_reset.take().unwrap_or(ResetCause::Unexpected);
@@ -748,9 +1056,15 @@ impl Conn {
                 }
                 self.forget_controller_state(cause);
             }
-            Reply::Message(m) => tracing::debug!("{}: [{m}]", self.link.device()),
+            Reply::Message(m) => {
+                if m == "MSG:Reset to continue" {
+                    self.reset_invited = true;
+                }
+                self.build.absorb(&m);
+                tracing::debug!("{}: [{m}]", self.link.device());
+            }
             Reply::Setting { n, value } => {
-                self.settings.insert(n, value);
+                self.settings.0.insert(n, value);
             }
             Reply::Other(_) => {}
         }
@@ -759,9 +1073,9 @@ impl Conn {
     /// After a reset the controller has forgotten every line, report and move in flight.
     fn forget_controller_state(&mut self, cause: ResetCause) {
         self.last_reset = cause;
+        self.critical = false;
         self.flow.clear();
         self.done.clear();
-        self.status_outstanding = 0;
         self.last_status = None;
         self.motion_end = None;
         self.resets += 1;
@@ -864,6 +1178,48 @@ fn index(letter: char, label: &str) -> DeviceResult<usize> {
     })
 }
 
+/// A failed homing cycle as [`DeviceError::HomingFailed`] (for an alarm) saying what to check.
+fn homing_error(e: DeviceError, cmd: &Command, mask: [bool; 3], port: &str) -> DeviceError {
+    let DeviceError::Alarm {
+        device,
+        code,
+        meaning,
+    } = e
+    else {
+        return e;
+    };
+    let letters: String = super::codec::AXIS_LETTERS
+        .iter()
+        .zip(mask)
+        .filter(|(_, on)| *on)
+        .map(|(l, _)| *l)
+        .collect();
+    let check = match code {
+        9 => format!(
+            "`{}` on {port} found no switch of axis {letters} within 1.5 × `$13x`: check the switch wiring, `$5` (switch polarity), `$23` (homing direction), `$25` (seek rate) and `$13x` (travel)",
+            cmd.line()
+        ),
+        8 => format!(
+            "`{}` on {port}: the switch of axis {letters} stayed pressed after the pull-off: check `$27` (pull-off), `$5` (switch polarity) and the switch wiring",
+            cmd.line()
+        ),
+        6 => format!(
+            "`{}` on {port} was interrupted by a reset; home again",
+            cmd.line()
+        ),
+        _ => format!(
+            "`{}` on {port}: check the homing switches of axis {letters}, `$5`, `$23` and `$25`",
+            cmd.line()
+        ),
+    };
+    DeviceError::HomingFailed {
+        device,
+        code,
+        meaning,
+        check,
+    }
+}
+
 /// The same error naming `name` as its device (an axis id instead of the controller).
 pub(crate) fn named(e: DeviceError, name: &str) -> DeviceError {
     e.with_device(name)
@@ -890,6 +1246,8 @@ mod tests {
             steps_per_deg: 142.222,
             controller_axis: letter.map(str::to_string),
             baud: None,
+            home_deg: 0.0,
+            machine_sign: 1.0,
         }
     }
 

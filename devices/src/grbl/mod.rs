@@ -2,7 +2,8 @@
 //!
 //! One [`GrblController`] per port is shared by the [`GrblAxis`] drivers of the axes on it and
 //! by a [`GrblLaser`] on its spindle output. [`codec`] and [`flow`] hold the pure protocol
-//! parts, [`codes`] the meanings of `error:N` and `ALARM:N`.
+//! parts, [`codes`] the meanings of `error:N` and `ALARM:N`, [`settings`] what the board's
+//! settings and build options mean for the rig.
 
 pub mod axis;
 pub mod codec;
@@ -10,6 +11,7 @@ pub mod codes;
 pub mod controller;
 pub mod flow;
 pub mod laser;
+pub mod settings;
 
 pub use axis::GrblAxis;
 pub use controller::GrblController;

@@ -112,12 +112,21 @@ fn check(spec: &RigSpec) -> Result<(), Problem> {
                 ),
             ));
         }
-        if !(a.min_deg..=a.max_deg).contains(&0.0) {
+        if !(a.home_deg.is_finite() && (a.min_deg..=a.max_deg).contains(&a.home_deg)) {
             return Err((
-                at("axis", i, "min_deg"),
+                at("axis", i, "home_deg"),
                 format!(
-                    "axis `{}`: the home position 0° must lie inside the soft limits [{}, {}]",
-                    a.id, a.min_deg, a.max_deg
+                    "axis `{}`: the home position {}° must lie inside the soft limits [{}, {}]",
+                    a.id, a.home_deg, a.min_deg, a.max_deg
+                ),
+            ));
+        }
+        if a.machine_sign != 1.0 && a.machine_sign != -1.0 {
+            return Err((
+                at("axis", i, "machine_sign"),
+                format!(
+                    "axis `{}`: machine_sign must be 1 or -1 (does the controller's coordinate grow with the angle?), got {}",
+                    a.id, a.machine_sign
                 ),
             ));
         }

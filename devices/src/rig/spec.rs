@@ -54,6 +54,24 @@ pub enum Backend {
     Software,
 }
 
+impl Backend {
+    /// The name a rig file uses (`relay-serial`, `grbl`, …).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Backend::Sim => "sim",
+            Backend::Grbl => "grbl",
+            Backend::RelaySerial => "relay-serial",
+            Backend::HidRelay => "hid-relay",
+            Backend::IrBridge => "ir-bridge",
+            Backend::V4l => "v4l",
+            Backend::Aravis => "aravis",
+            Backend::Gphoto2 => "gphoto2",
+            Backend::Switch => "switch",
+            Backend::Software => "software",
+        }
+    }
+}
+
 /// Default baud rates of the serial protocols (USB CDC ports ignore the rate).
 pub const GRBL_BAUD: u32 = 115_200;
 pub const RELAY_SERIAL_BAUD: u32 = 19_200;
@@ -105,6 +123,20 @@ pub struct AxisSpec {
     /// Serial baud rate (default 115200 for GRBL).
     #[serde(default)]
     pub baud: Option<u32>,
+    /// The angle the axis rests at after homing (for GRBL: the pulled-off position next to
+    /// the homing switch). Default 0°.
+    #[serde(default)]
+    pub home_deg: f64,
+    /// How rig degrees map onto a GRBL controller's machine coordinate: +1 when they grow
+    /// together, -1 when the machine coordinate falls as the angle rises. GRBL machine space
+    /// is negative after homing (−`$13x`…0), so this and `home_deg` place the rig's range in
+    /// it. Default +1.
+    #[serde(default = "default_machine_sign")]
+    pub machine_sign: f64,
+}
+
+fn default_machine_sign() -> f64 {
+    1.0
 }
 
 fn default_homing_speed() -> f64 {
@@ -299,7 +331,9 @@ pub struct LaserSpec {
     /// 1/e² half-thickness of the laser sheet at the sample.
     #[serde(default = "default_sheet")]
     pub sheet_half_width_mm: f64,
-    /// Switch bank and channel that power the laser (backend `switch`).
+    /// Switch bank and channel that power the laser (backend `switch`; with backend `grbl`, a
+    /// relay in series with the spindle output, so both must be on and the board's watchdog
+    /// can switch the laser off).
     #[serde(default)]
     pub bank: Option<String>,
     #[serde(default)]
@@ -449,5 +483,58 @@ impl RigSpec {
     /// The first axis with the given role.
     pub fn axis_with_role(&self, role: AxisRole) -> Option<&AxisSpec> {
         self.axes.iter().find(|a| a.role == role)
+    }
+
+    /// What switches the laser off if stagehand dies mid-run (`None` without a laser).
+    pub fn laser_watchdog(&self) -> Option<LaserWatchdog> {
+        let l = self.laser.as_ref()?;
+        let bank = l.bank.as_deref().and_then(|b| self.bank(b));
+        Some(match (l.backend, bank) {
+            (Backend::Sim, _) => LaserWatchdog::Simulated,
+            (Backend::Switch | Backend::Grbl, Some(b)) => match b.backend {
+                Backend::RelaySerial => LaserWatchdog::Relay {
+                    bank: b.id.clone(),
+                    watchdog_s: b.watchdog_s,
+                },
+                Backend::Sim => LaserWatchdog::Simulated,
+                _ => LaserWatchdog::None(format!(
+                    "the relay board of bank `{}` ({}) has no watchdog, so the laser stays on if stagehand dies",
+                    b.id,
+                    b.backend.as_str()
+                )),
+            },
+            (Backend::Grbl, None) => LaserWatchdog::None(
+                "GRBL has no watchdog: its spindle output stays on if stagehand dies; power the laser through a relay-serial channel too (`bank`, `channel` on the [laser] table) to get the relay board's watchdog".into(),
+            ),
+            (backend, _) => LaserWatchdog::None(format!(
+                "backend `{}` has no watchdog",
+                backend.as_str()
+            )),
+        })
+    }
+}
+
+/// What switches a laser off when its host stops renewing a lease.
+#[derive(Debug, Clone, PartialEq)]
+pub enum LaserWatchdog {
+    /// A relay-serial board's watchdog switches the relay off `watchdog_s` after the last
+    /// command.
+    Relay { bank: String, watchdog_s: f64 },
+    /// A simulated laser: nothing real to protect.
+    Simulated,
+    /// Nothing does; the sentence says why and what to do.
+    None(String),
+}
+
+impl LaserWatchdog {
+    /// One line for people: the status page, the dry run.
+    pub fn describe(&self) -> String {
+        match self {
+            LaserWatchdog::Relay { bank, watchdog_s } => format!(
+                "the relay board of bank `{bank}` switches the laser off {watchdog_s} s after stagehand stops"
+            ),
+            LaserWatchdog::Simulated => "simulated laser".into(),
+            LaserWatchdog::None(why) => format!("no watchdog: {why}"),
+        }
     }
 }

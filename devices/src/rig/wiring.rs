@@ -12,31 +12,16 @@ fn at(table: &'static str, index: usize, key: &'static str) -> Vec<Seg> {
     vec![Seg::Key(table), Seg::Index(index), Seg::Key(key)]
 }
 
-fn name(b: Backend) -> &'static str {
-    match b {
-        Backend::Sim => "sim",
-        Backend::Grbl => "grbl",
-        Backend::RelaySerial => "relay-serial",
-        Backend::HidRelay => "hid-relay",
-        Backend::IrBridge => "ir-bridge",
-        Backend::V4l => "v4l",
-        Backend::Aravis => "aravis",
-        Backend::Gphoto2 => "gphoto2",
-        Backend::Switch => "switch",
-        Backend::Software => "software",
-    }
-}
-
 fn backend_for(path: Vec<Seg>, what: &str, b: Backend, allowed: &[Backend]) -> Result<(), Problem> {
     if allowed.contains(&b) {
         return Ok(());
     }
-    let list: Vec<&str> = allowed.iter().map(|&a| name(a)).collect();
+    let list: Vec<&str> = allowed.iter().map(|&a| a.as_str()).collect();
     Err((
         path,
         format!(
             "{what}: backend `{}` cannot drive this kind of device; use one of {}",
-            name(b),
+            b.as_str(),
             list.join(", ")
         ),
     ))
@@ -54,7 +39,7 @@ fn needs_port(
             path,
             format!(
                 "{what}: backend `{}` needs `port`, e.g. a /dev/serial/by-id/... path (list them with `stagehand devices`)",
-                name(b)
+                b.as_str()
             ),
         )),
     }
@@ -216,12 +201,14 @@ pub(super) fn check_wiring(spec: &RigSpec) -> Result<(), Problem> {
         if l.backend == Backend::Grbl {
             needs_port(key("backend"), &what, l.backend, &l.port)?;
         }
-        if l.backend == Backend::Switch {
+        // A GRBL laser may also be powered through a relay (`bank`, `channel`): both must be
+        // on to emit, and the relay board's watchdog switches it off if stagehand dies.
+        if l.backend == Backend::Switch || (l.backend == Backend::Grbl && l.bank.is_some()) {
             let Some(bank) = l.bank.as_deref().and_then(|b| spec.bank(b)) else {
                 return Err((
                     key("backend"),
                     format!(
-                        "{what}: backend `switch` needs `bank`, the id of the switch bank that powers the laser"
+                        "{what}: `bank` must name the switch bank whose relay powers the laser"
                     ),
                 ));
             };
@@ -230,7 +217,7 @@ pub(super) fn check_wiring(spec: &RigSpec) -> Result<(), Problem> {
                 return Err((
                     key("backend"),
                     format!(
-                        "{what}: backend `switch` needs `channel` between 1 and {} (bank `{}`)",
+                        "{what}: the laser's relay needs `channel` between 1 and {} (bank `{}`)",
                         bank.channels, bank.id
                     ),
                 ));

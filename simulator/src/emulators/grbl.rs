@@ -1,8 +1,15 @@
-//! A GRBL 1.1h controller: banner, homing lock, status reports, feed hold/resume, soft reset,
-//! homing, `$$` settings, absolute/relative G0 moves through a planner queue, the laser on the
-//! spindle output, a 127-byte receive buffer and a laser watchdog. Moves are planned with the
-//! axes' kinematics and written into the World exactly as `SimAxis` does, so cameras see the
-//! motion and the motion interlock sees moves during exposures.
+//! A GRBL 1.1h controller, following the real firmware (checked by the conformance suite in
+//! `simulator/tests/grbl_conformance.rs` against GRBL 1.1h itself): banner and homing lock,
+//! `$I` build info for a stock build (`$H` only; `$HX` answers `error:3` and leaves it stuck
+//! in Home) or one with single-axis homing, `$$` settings, status reports with the real
+//! optional fields (`WCO:`, `Ov:`, `A:S`, `FS:`, `Pn:` on their counters), silence during
+//! homing, negative machine space after homing (−`$27`), soft limits (`ALARM:2`, then nothing
+//! but a reset), work offsets (`G10 L2`, `G54`) and `G53`, feed hold/resume, soft reset, the
+//! spindle output (off in laser mode `$32=1` without G1 motion) and no watchdog, as GRBL has
+//! none. Moves are planned with the axes' kinematics and written into the World exactly as
+//! `SimAxis` does, through the rig file's `home_deg`/`machine_sign` map from machine
+//! coordinates to degrees, so cameras see the motion and the motion interlock sees moves
+//! during exposures.
 
 use std::collections::{BTreeMap, VecDeque};
 use std::path::Path;
@@ -20,13 +27,23 @@ pub const BANNER: &str = "\r\nGrbl 1.1h ['$' for help]\r\n";
 pub const HOMING_LOCK_MSG: &str = "[MSG:'$H'|'$X' to unlock]\r\n";
 /// Usable bytes of GRBL's serial receive buffer.
 pub const RX_BUFFER: usize = 127;
-/// No byte for this long switches the laser off (safety lease).
-pub const WATCHDOG_S: f64 = 3.0;
+/// `$I` version line of GRBL 1.1h.
+pub const VERSION: &str = "[VER:1.1h.20190830:]";
+/// Status report refresh counts of `config.h` (reports between `Ov:` and `WCO:` fields).
+const OVR_BUSY: u32 = 20;
+const OVR_IDLE: u32 = 10;
+const WCO_BUSY: u32 = 30;
+const WCO_IDLE: u32 = 10;
+/// Settings printed as integers (the rest with 3 decimals).
+const INTEGER_SETTINGS: [u32; 17] = [0, 1, 2, 3, 4, 5, 6, 10, 13, 20, 21, 22, 23, 26, 30, 31, 32];
 /// Blocks the planner holds; a full planner stops the line parser.
 const PLANNER_BLOCKS: usize = 15;
 /// Longest line GRBL accepts (LINE_BUFFER_SIZE 80 minus the terminator).
 const MAX_LINE: usize = 79;
 const LETTERS: [char; 3] = ['X', 'Y', 'Z'];
+
+/// Pseudo status code: the line hit the soft limits (`ALARM:2`, its `ok` held until reset).
+const SOFT_LIMIT: u8 = 255;
 
 /// The integer of a G or M word (`G90`), or `None` for a fractional one (`G38.2`).
 fn command_number(value: f64) -> Option<u32> {
@@ -36,9 +53,19 @@ fn command_number(value: f64) -> Option<u32> {
 /// A running GRBL emulator; see [`EmulatorHandle`] for the path and counters.
 pub struct GrblEmulator;
 
+/// How the emulated board was built and set up.
+#[derive(Debug, Clone, Default)]
+pub struct GrblBuild {
+    /// Built with `HOMING_SINGLE_AXIS_COMMANDS` (`$HX`); otherwise a stock build (`$H` only).
+    pub single_axis_homing: bool,
+    /// Settings written after the rig-derived defaults (`$N`, value), as a lab would send.
+    pub settings: Vec<(u32, f64)>,
+}
+
 impl GrblEmulator {
-    /// Starts a controller for `axes` (each with `controller_axis` `X`, `Y` or `Z`; an axis
-    /// without a letter takes the next free one) at `<link_dir>/<name>`. Needs a tokio runtime.
+    /// Starts a stock controller for `axes` (each with `controller_axis` `X`, `Y` or `Z`; an
+    /// axis without a letter takes the next free one) at `<link_dir>/<name>`, set up for the
+    /// rig (`$10x`, rates, travel, `$22=1`, `$32=0`). Needs a tokio runtime.
     pub fn spawn(
         world: Arc<World>,
         axes: &[AxisSpec],
@@ -46,13 +73,36 @@ impl GrblEmulator {
         name: &str,
         faults: Arc<Faults>,
     ) -> std::io::Result<EmulatorHandle> {
+        Self::spawn_with(world, axes, link_dir, name, faults, GrblBuild::default())
+    }
+
+    /// Like [`GrblEmulator::spawn`] for the board `build`.
+    pub fn spawn_with(
+        world: Arc<World>,
+        axes: &[AxisSpec],
+        link_dir: &Path,
+        name: &str,
+        faults: Arc<Faults>,
+        build: GrblBuild,
+    ) -> std::io::Result<EmulatorHandle> {
         let stats = Arc::new(EmulatorStats::default());
-        let fw = Grbl::new(
+        let mut fw = Grbl::new(
             Arc::clone(&world),
             axes,
             Arc::clone(&stats),
             Arc::clone(&faults),
         )?;
+        fw.single_axis = build.single_axis_homing;
+        for (k, v) in build.settings {
+            fw.set_setting(k, v).map_err(|code| {
+                std::io::Error::new(
+                    std::io::ErrorKind::InvalidInput,
+                    format!("setting ${k}={v} refused with error:{code}"),
+                )
+            })?;
+        }
+        let now = world.clock().now_s();
+        fw.power_on_refs(now);
         spawn_firmware(fw, &world, link_dir, name, stats, faults)
     }
 }
@@ -63,10 +113,12 @@ enum Mode {
     Alarm,
 }
 
-/// A queued move: absolute targets per controller axis (None = that axis stays).
+/// A queued move: absolute machine targets per controller axis (None = that axis stays).
 #[derive(Debug, Clone, Copy)]
 struct Block {
     targets: [Option<f64>; 3],
+    /// The World angles the targets stand for, before GRBL's step quantisation.
+    world: [Option<f64>; 3],
     move_no: u64,
 }
 
@@ -83,6 +135,8 @@ enum Active {
         end_s: f64,
         /// Command number of the `$H` line, answered when homing ends.
         cmd_no: u64,
+        /// The switch of some axis is out of reach: the cycle ends in `ALARM:9`.
+        fails: bool,
     },
 }
 
@@ -93,8 +147,33 @@ struct Grbl {
     faults: Arc<Faults>,
     mode: Mode,
     held: bool,
-    /// A critical alarm (1, 2) locks everything out until a soft reset.
+    /// Built with single-axis homing (`$HX`).
+    single_axis: bool,
+    /// A stock build given `$HX`: error:3 and the state machine left in Home until a reset.
+    stuck_home: bool,
+    /// A critical alarm (1, 2) locks everything out, status reports too, until a soft reset.
     locked_until_reset: bool,
+    /// The `ok` of the line that raised a critical alarm, printed when the reset comes.
+    ok_on_reset: Option<u64>,
+    /// `?` received during a homing cycle: one report is printed when the cycle ends.
+    status_pending: bool,
+    /// Per axis, a World angle and the machine coordinate it had then (power-on: 0; after
+    /// homing: the home position), so machine = m + sign × (angle − w).
+    refs: [(f64, f64); 3],
+    /// `G54` work offset (`G10 L2 P1`).
+    g54: [f64; 3],
+    /// Machine position of each axis at rest after a move or homing, in GRBL's own steps
+    /// (the World may sit on the rig's microstep grid a fraction of a step away).
+    rest: [Option<f64>; 3],
+    /// The parser's programmed position in machine coordinates (unquantised, as GRBL keeps
+    /// `gc_state.position`): the base of relative moves.
+    programmed: [f64; 3],
+    /// A `G4` dwell waiting for the planner to empty: its command number and, once the
+    /// planner is empty, when it answers.
+    sync: Option<(u64, Option<f64>)>,
+    sync_dwell: f64,
+    wco_counter: u32,
+    ovr_counter: u32,
     active: Option<Active>,
     queue: VecDeque<Block>,
     /// Received line bytes not yet taken by the parser (the serial RX buffer).
@@ -107,7 +186,6 @@ struct Grbl {
     spindle_s: f64,
     laser_on: bool,
     moves: u64,
-    last_byte_s: f64,
     settings: BTreeMap<u32, String>,
 }
 
@@ -158,18 +236,26 @@ impl Grbl {
         for (k, v) in [(10, "1"), (11, "0.010"), (12, "0.002"), (13, "0")] {
             settings.insert(k, v.to_string());
         }
-        for (k, v) in [(20, "0"), (21, "0"), (22, "1"), (23, "0"), (24, "25.000")] {
-            settings.insert(k, v.to_string());
-        }
+        // Homing on, as a rig needs (stock GRBL ships with `$22=0`), seeking at the fastest
+        // axis's homing speed and locating at a quarter of it; laser mode off.
+        let seek = axes
+            .iter()
+            .map(|a| a.homing_speed_deg_s * 60.0)
+            .fold(500.0, f64::max);
         for (k, v) in [
-            (25, "500.000"),
-            (26, "250"),
-            (27, "1.000"),
-            (30, "1000"),
-            (31, "0"),
-            (32, "1"),
+            (20, "0".to_string()),
+            (21, "0".into()),
+            (22, "1".into()),
+            (23, "0".into()),
+            (24, format!("{:.3}", seek / 4.0)),
+            (25, format!("{seek:.3}")),
+            (26, "250".into()),
+            (27, "1.000".into()),
+            (30, "1000".into()),
+            (31, "0".into()),
+            (32, "0".into()),
         ] {
-            settings.insert(k, v.to_string());
+            settings.insert(k, v);
         }
         for (i, slot) in slots.iter().enumerate() {
             let i = i as u32;
@@ -181,6 +267,11 @@ impl Grbl {
                     a.max_deg - a.min_deg,
                 ),
                 None => (250.0, 500.0, 10.0, 200.0),
+            };
+            // Room for the rig range and for a seek round the rotary flag (1.5 × travel).
+            let travel = match slot {
+                Some(_) => travel.max(360.0),
+                None => travel,
             };
             settings.insert(100 + i, format!("{steps:.3}"));
             settings.insert(110 + i, format!("{rate:.3}"));
@@ -194,7 +285,19 @@ impl Grbl {
             faults,
             mode: Mode::Alarm,
             held: false,
+            single_axis: false,
+            stuck_home: false,
             locked_until_reset: false,
+            ok_on_reset: None,
+            status_pending: false,
+            refs: [(0.0, 0.0); 3],
+            g54: [0.0; 3],
+            rest: [None; 3],
+            programmed: [0.0; 3],
+            sync: None,
+            sync_dwell: 0.0,
+            wco_counter: 0,
+            ovr_counter: 0,
             active: None,
             queue: VecDeque::new(),
             rx: VecDeque::new(),
@@ -205,7 +308,6 @@ impl Grbl {
             spindle_s: 0.0,
             laser_on: false,
             moves: 0,
-            last_byte_s: 0.0,
             settings,
         })
     }
@@ -214,15 +316,90 @@ impl Grbl {
         self.axes[i].as_ref().map(|a| a.id.as_str())
     }
 
-    /// Motor position of controller axis `i` at `t` (0 for an axis not configured).
-    fn position(&self, i: usize, t: f64) -> f64 {
+    /// Motor angle in the World of controller axis `i` at `t` (0 for an axis not configured).
+    fn world_at(&self, i: usize, t: f64) -> f64 {
         self.axis_id(i)
             .and_then(|id| self.world.with_axis(id, |a| a.motor_at(t)))
             .unwrap_or(0.0)
     }
 
+    fn sign(&self, i: usize) -> f64 {
+        match &self.axes[i] {
+            Some(a) if a.machine_sign < 0.0 => -1.0,
+            _ => 1.0,
+        }
+    }
+
+    fn steps(&self, i: usize) -> f64 {
+        self.setting(100 + i as u32).max(1e-9)
+    }
+
+    /// Machine position of axis `i` at `t`, quantised to its steps as GRBL counts them.
+    fn position(&self, i: usize, t: f64) -> f64 {
+        if let Some(m) = self.rest[i] {
+            return m;
+        }
+        let (w, m) = self.refs[i];
+        let raw = m + self.sign(i) * (self.world_at(i, t) - w);
+        (raw * self.steps(i)).round() / self.steps(i)
+    }
+
+    /// The World angle of machine coordinate `m` on axis `i`.
+    fn world_of(&self, i: usize, m: f64) -> f64 {
+        let (w, m0) = self.refs[i];
+        w + self.sign(i) * (m - m0)
+    }
+
+    /// Power-on: every axis reads machine 0 where it stands.
+    fn power_on_refs(&mut self, t: f64) {
+        self.rest = [None; 3];
+        for i in 0..3 {
+            self.refs[i] = (self.world_at(i, t), 0.0);
+        }
+    }
+
+    fn setting(&self, k: u32) -> f64 {
+        self.settings
+            .get(&k)
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0.0)
+    }
+
+    fn flag(&self, k: u32, bit: usize) -> bool {
+        (self.setting(k) as u32) & (1 << bit) != 0
+    }
+
+    /// `$N=v` as GRBL stores it: error:3 for an unknown setting, error:4 for a negative value.
+    fn set_setting(&mut self, k: u32, v: f64) -> Result<(), u8> {
+        if !self.settings.contains_key(&k) {
+            return Err(3);
+        }
+        if !v.is_finite() || v < 0.0 {
+            return Err(4);
+        }
+        let text = if INTEGER_SETTINGS.contains(&k) {
+            format!("{}", v.trunc() as i64)
+        } else {
+            format!("{v:.3}")
+        };
+        self.settings.insert(k, text);
+        Ok(())
+    }
+
+    /// The machine coordinate an axis rests at after homing (−`$27`, or −`$13x` + `$27`
+    /// when `$23` makes it home toward −).
+    fn home_machine(&self, i: usize) -> f64 {
+        let raw = if self.flag(23, i) {
+            -self.setting(130 + i as u32) + self.setting(27)
+        } else {
+            -self.setting(27)
+        };
+        (raw * self.steps(i)).round() / self.steps(i)
+    }
+
     /// Stops every axis where it is at `t` (steps stop at once).
-    fn freeze(&self, t: f64) {
+    fn freeze(&mut self, t: f64) {
+        self.rest = [None; 3];
         for i in 0..3 {
             if let Some(id) = self.axis_id(i) {
                 self.world.with_axis(id, |a| {
@@ -249,28 +426,132 @@ impl Grbl {
         }
     }
 
-    fn status(&self, t: f64) -> String {
-        let state = if self.mode == Mode::Alarm {
-            "Alarm"
-        } else if matches!(self.active, Some(Active::Home { .. })) {
+    /// The spindle output: on after `M3`/`M4`, except in laser mode (`$32=1`), where GRBL
+    /// lights it only during G1 motion (never emulated: G0 only).
+    fn output_on(&self) -> bool {
+        self.spindle_on && !self.flag(32, 0)
+    }
+
+    fn status_word(&self) -> &'static str {
+        if self.stuck_home || matches!(self.active, Some(Active::Home { .. })) {
             "Home"
+        } else if self.mode == Mode::Alarm {
+            "Alarm"
         } else if self.held {
             "Hold:0"
         } else if self.active.is_some() || !self.queue.is_empty() {
             "Run"
         } else {
             "Idle"
+        }
+    }
+
+    /// One status report as `report_realtime_status` prints it, advancing its counters.
+    fn status(&mut self, t: f64) -> String {
+        let state = self.status_word();
+        let busy = !matches!(state, "Idle" | "Alarm");
+        let mpos: Vec<f64> = (0..3).map(|i| self.position(i, t)).collect();
+        let fmt = |v: &[f64]| {
+            v.iter()
+                .map(|x| format!("{:.3}", if x.abs() < 0.0005 { 0.0 } else { *x }))
+                .collect::<Vec<_>>()
+                .join(",")
         };
-        let p: Vec<String> = (0..3)
-            .map(|i| format!("{:.3}", self.position(i, t)))
+        let mut line = format!("<{state}|");
+        if self.flag(10, 0) {
+            line.push_str(&format!("MPos:{}", fmt(&mpos)));
+        } else {
+            let w: Vec<f64> = (0..3).map(|i| mpos[i] - self.g54[i]).collect();
+            line.push_str(&format!("WPos:{}", fmt(&w)));
+        }
+        let feed = match self.active {
+            Some(Active::Move { .. }) => self.feed_at(t),
+            _ => 0.0,
+        };
+        let speed = if self.output_on() {
+            self.spindle_s
+        } else {
+            0.0
+        };
+        line.push_str(&format!("|FS:{feed:.0},{speed:.0}"));
+        let pins: String = (0..3)
+            .filter(|&i| self.switch_pressed(i, t))
+            .map(|i| LETTERS[i])
             .collect();
-        format!("<{state}|MPos:{}|FS:0,0>\r\n", p.join(","))
+        if !pins.is_empty() {
+            line.push_str(&format!("|Pn:{pins}"));
+        }
+        if self.wco_counter > 0 {
+            self.wco_counter -= 1;
+        } else {
+            self.wco_counter = if busy { WCO_BUSY } else { WCO_IDLE } - 1;
+            if self.ovr_counter == 0 {
+                self.ovr_counter = 1;
+            }
+            line.push_str(&format!("|WCO:{}", fmt(&self.g54)));
+        }
+        if self.ovr_counter > 0 {
+            self.ovr_counter -= 1;
+        } else {
+            self.ovr_counter = if busy { OVR_BUSY } else { OVR_IDLE } - 1;
+            line.push_str("|Ov:100,100,100");
+            if self.output_on() {
+                line.push_str("|A:S");
+            }
+        }
+        line.push_str(">\r\n");
+        line
+    }
+
+    /// Current feed rate of the active move in units per minute (the fastest axis).
+    fn feed_at(&self, t: f64) -> f64 {
+        (0..3)
+            .filter_map(|i| {
+                let id = self.axis_id(i)?;
+                self.world.with_axis(id, |a| {
+                    a.moving.map_or(0.0, |(traj, start)| {
+                        let dt = 1e-3;
+                        let ds =
+                            traj.position_at(t - start + dt) - traj.position_at(t - start - dt);
+                        (ds / (2.0 * dt)).abs() * 60.0
+                    })
+                })
+            })
+            .fold(0.0, f64::max)
+    }
+
+    /// The World angle where axis `i`'s homing switch trips (next to the home position).
+    fn switch_world(&self, i: usize) -> f64 {
+        let home_deg = self.axes[i].as_ref().map_or(0.0, |a| a.home_deg);
+        let trip = if self.flag(23, i) {
+            -self.setting(130 + i as u32)
+        } else {
+            0.0
+        };
+        home_deg + self.sign(i) * (trip - self.home_machine(i))
+    }
+
+    /// The switch is pressed over 2 units past its trip point, every 360 (a rotary flag).
+    fn switch_pressed(&self, i: usize, t: f64) -> bool {
+        if self.axes[i].is_none() {
+            return false;
+        }
+        let dir = self.seek_dir(i);
+        let past = (dir * (self.world_at(i, t) - self.switch_world(i))).rem_euclid(360.0);
+        past < 2.0 && self.mode != Mode::Alarm && self.active.is_none()
+    }
+
+    /// World direction of the homing seek (toward the switch).
+    fn seek_dir(&self, i: usize) -> f64 {
+        let machine_dir = if self.flag(23, i) { -1.0 } else { 1.0 };
+        machine_dir * self.sign(i)
     }
 
     /// Soft reset (0x18) or a power cycle (`power_cycle`: position always lost).
     fn reset(&mut self, t: f64, power_cycle: bool, out: &mut Output) {
+        let homing = self.stuck_home || matches!(self.active, Some(Active::Home { .. }));
         let alarm = match self.active {
-            Some(Active::Home { .. }) if !power_cycle => Some(6),
+            _ if homing && !power_cycle => Some(6),
             Some(Active::Move { .. }) if !self.held && !power_cycle => Some(3),
             _ => None,
         };
@@ -282,6 +563,22 @@ impl Grbl {
         if let Some(code) = alarm {
             out.send(format!("ALARM:{code}\r\n"));
         }
+        if let Some(cmd_no) = self.ok_on_reset.take() {
+            self.reply(cmd_no, "ok", t, out);
+        }
+        if power_cycle {
+            self.power_on_refs(t);
+            self.g54 = [0.0; 3];
+        }
+        self.stuck_home = false;
+        self.status_pending = false;
+        self.sync = None;
+        // gc_sync_position: the parser starts again from where the axes stand.
+        for i in 0..3 {
+            self.programmed[i] = self.position(i, t);
+        }
+        self.wco_counter = 0;
+        self.ovr_counter = 0;
         self.active = None;
         self.queue.clear();
         self.rx.clear();
@@ -320,6 +617,8 @@ impl Grbl {
     /// True while the line parser cannot take another line.
     fn parser_blocked(&self) -> bool {
         self.locked_until_reset
+            || self.ok_on_reset.is_some()
+            || self.sync.is_some()
             || matches!(self.active, Some(Active::Home { .. }))
             || self.queue.len() >= PLANNER_BLOCKS
     }
@@ -352,6 +651,17 @@ impl Grbl {
             match result {
                 Ok(Some(reply)) => self.reply(cmd_no, &reply, t, out),
                 Ok(None) => {}
+                Err(SOFT_LIMIT) => {
+                    // limits_soft_check: reset, ALARM:2, then nothing until the user resets;
+                    // the line's `ok` comes out with the reset.
+                    self.freeze(t);
+                    self.mode = Mode::Alarm;
+                    self.locked_until_reset = true;
+                    self.ok_on_reset = Some(cmd_no);
+                    self.spindle_on = false;
+                    self.set_laser(false);
+                    out.send("ALARM:2\r\n[MSG:Reset to continue]\r\n");
+                }
                 Err(code) => self.reply(cmd_no, &format!("error:{code}"), t, out),
             }
             self.after_command(cmd_no, t, out);
@@ -385,10 +695,10 @@ impl Grbl {
         if let Some(cmd) = line.strip_prefix('$') {
             return self.system_command(cmd, cmd_no, t, out);
         }
-        if self.mode == Mode::Alarm {
+        if self.mode == Mode::Alarm && !self.stuck_home {
             return Err(9);
         }
-        self.gcode(&line, t)
+        self.gcode(&line, cmd_no)
     }
 
     fn system_command(
@@ -411,8 +721,10 @@ impl Grbl {
                 }
                 Ok(Some("ok".into()))
             }
+            "I" if self.stuck_home => Err(8),
             "I" => {
-                out.send("[VER:1.1h.20190825:]\r\n[OPT:V,15,128]\r\n");
+                let opt = if self.single_axis { "VH" } else { "V" };
+                out.send(format!("{VERSION}\r\n[OPT:{opt},15,128]\r\n"));
                 Ok(Some("ok".into()))
             }
             "G" => {
@@ -425,21 +737,33 @@ impl Grbl {
                 Ok(Some("ok".into()))
             }
             "X" => {
-                if self.mode == Mode::Alarm {
+                if self.mode == Mode::Alarm && !self.stuck_home {
                     out.send("[MSG:Caution: Unlocked]\r\n");
                     self.mode = Mode::Idle;
                 }
                 Ok(Some("ok".into()))
             }
-            "H" | "HX" | "HY" | "HZ" => {
+            _ if self.stuck_home && !cmd.starts_with('$') => Err(8),
+            _ if cmd.starts_with('H') => {
                 if self.held || self.active.is_some() || !self.queue.is_empty() {
                     return Err(8);
                 }
-                let mut which = [false; 3];
-                for (i, w) in which.iter_mut().enumerate() {
-                    *w = self.axes[i].is_some()
-                        && (cmd == "H" || cmd[1..] == *LETTERS[i].to_string());
+                if self.setting(22) == 0.0 {
+                    return Err(5);
                 }
+                if cmd != "H" && !self.single_axis {
+                    // A stock build: the state machine is already in Home when the parser
+                    // refuses the letter, and stays there until a reset.
+                    self.stuck_home = true;
+                    return Err(3);
+                }
+                let which = match cmd {
+                    "H" => [true; 3],
+                    "HX" => [true, false, false],
+                    "HY" => [false, true, false],
+                    "HZ" => [false, false, true],
+                    _ => return Err(3),
+                };
                 self.start_homing(which, cmd_no, t);
                 Ok(None)
             }
@@ -447,44 +771,66 @@ impl Grbl {
                 if let Some((k, v)) = cmd.split_once('=')
                     && let Ok(k) = k.parse::<u32>()
                 {
-                    if !self.settings.contains_key(&k) {
-                        return Err(3);
+                    if self.stuck_home {
+                        return Err(8);
                     }
                     let v: f64 = v.parse().map_err(|_| 2u8)?;
-                    if v < 0.0 {
-                        return Err(4);
-                    }
-                    let text = if v.fract() == 0.0 && k < 100 {
-                        format!("{}", v as i64)
-                    } else {
-                        format!("{v:.3}")
-                    };
-                    self.settings.insert(k, text);
+                    self.set_setting(k, v)?;
                     return Ok(Some("ok".into()));
                 }
-                Err(3)
+                if cmd.starts_with('N') {
+                    // Startup blocks are not stored: none are printed after a reset.
+                    return Ok(Some("ok".into()));
+                }
+                // Anything else is read as a setting number: a letter is a bad number.
+                if cmd.starts_with(|c: char| c.is_ascii_digit()) {
+                    Err(3)
+                } else {
+                    Err(2)
+                }
             }
         }
     }
 
+    /// Starts a homing cycle of the axes in `which`: each seeks its switch (a rotary flag,
+    /// so it is found within one turn) at `$25`, then locates it at `$24` and pulls off `$27`.
+    /// A switch farther than 1.5 × `$13x` fails the cycle with `ALARM:9`.
     fn start_homing(&mut self, which: [bool; 3], cmd_no: u64, t: f64) {
+        let seek = self.setting(25).max(1e-3) / 60.0;
+        let locate = self.setting(24).max(1e-3) / 60.0;
+        let pull = self.setting(27);
         let mut end_s = t;
+        let mut fails = false;
         for (i, &w) in which.iter().enumerate() {
-            let (Some(spec), true) = (&self.axes[i], w) else {
+            let (Some(spec), true) = (self.axes[i].clone(), w) else {
                 continue;
             };
-            let from = self.position(i, t);
-            // Homing runs at constant speed toward the switch at 0°, as SimAxis homes.
-            let speed = spec.homing_speed_deg_s.max(1e-9);
+            self.rest[i] = None;
+            let from = self.world_at(i, t);
+            let dir = self.seek_dir(i);
+            let reach = 1.5 * self.setting(130 + i as u32);
+            let d = (dir * (self.switch_world(i) - from)).rem_euclid(360.0);
+            let (to, travel) = if d <= reach {
+                // Ends back at the home position (the flag found is the home flag).
+                (spec.home_deg, d)
+            } else {
+                fails = true;
+                (from + dir * reach, reach)
+            };
+            let dur = travel / seek + (2.0 + 5.0) * pull / locate;
+            end_s = end_s.max(t + dur);
+            // Constant speed over the whole cycle (the ramps are negligibly short).
+            let peak = (to - from).abs() / dur.max(1e-9);
+            let accel = 1e12;
+            let ramp_s = peak / accel;
             let traj = Trapezoid {
                 from_deg: from,
-                to_deg: 0.0,
-                peak_deg_s: speed,
-                accel_deg_s2: f64::INFINITY,
-                ramp_s: 0.0,
-                cruise_s: from.abs() / speed,
+                to_deg: to,
+                peak_deg_s: peak,
+                accel_deg_s2: accel,
+                ramp_s,
+                cruise_s: (dur - 2.0 * ramp_s).max(0.0),
             };
-            end_s = end_s.max(t + traj.duration_s());
             self.world
                 .with_axis(&spec.id, |a| a.moving = Some((traj, t)));
         }
@@ -492,10 +838,11 @@ impl Grbl {
             axes: which,
             end_s,
             cmd_no,
+            fails,
         });
     }
 
-    fn gcode(&mut self, line: &str, t: f64) -> Result<Option<String>, u8> {
+    fn gcode(&mut self, line: &str, cmd_no: u64) -> Result<Option<String>, u8> {
         let bytes = line.as_bytes();
         let mut i = 0;
         let mut words: Vec<(char, f64)> = Vec::new();
@@ -524,14 +871,24 @@ impl Grbl {
         let mut spindle_on = self.spindle_on;
         let mut spindle_s = self.spindle_s;
         let mut targets: [Option<f64>; 3] = [None; 3];
+        let mut machine = false;
+        let mut set_offset = false;
+        let mut dwell = false;
+        let mut l_word = None;
+        let mut p_word = 0.0;
         for &(letter, value) in &words {
             match letter {
                 'G' => match command_number(value) {
                     Some(0 | 1 | 17 | 21 | 54 | 94) => {}
+                    Some(53) => machine = true,
+                    Some(4) => dwell = true,
+                    Some(10) => set_offset = true,
                     Some(90) => relative = false,
                     Some(91) => relative = true,
                     _ => return Err(20),
                 },
+                'L' => l_word = Some(value),
+                'P' if set_offset || dwell => p_word = value,
                 'M' => match command_number(value) {
                     Some(3 | 4) => spindle_on = true,
                     Some(5) => spindle_on = false,
@@ -550,47 +907,77 @@ impl Grbl {
                 _ => return Err(20),
             }
         }
+        if dwell {
+            self.sync = Some((cmd_no, None));
+            self.sync_dwell = p_word.max(0.0);
+            return Ok(None);
+        }
+        if set_offset {
+            // `G10 L2 P1 X..`: the G54 offset (the only coordinate system emulated).
+            if l_word != Some(2.0) {
+                return Err(20);
+            }
+            for (k, v) in targets.iter().enumerate() {
+                if let Some(v) = v {
+                    self.g54[k] = *v;
+                }
+            }
+            self.wco_counter = 0;
+            return Ok(Some("ok".into()));
+        }
         self.relative = relative;
+        if spindle_on != self.spindle_on || spindle_s != self.spindle_s {
+            // spindle_set_state: the next report carries `Ov:` (and `A:`).
+            self.ovr_counter = 0;
+        }
         self.spindle_on = spindle_on;
         self.spindle_s = spindle_s;
-        let on = spindle_on && spindle_s > 0.0;
+        let on = self.output_on() && spindle_s > 0.0;
         self.set_laser(on);
         if targets.iter().any(Option::is_some) {
-            // Targets are absolute, quantised to the steps; relative moves are taken from the
-            // end of the last queued block.
+            // Targets are machine coordinates (work + G54, or G53), quantised to the steps;
+            // relative moves are taken from the programmed position.
             let mut abs = [None; 3];
+            let mut unquantised = [None; 3];
             for k in 0..3 {
-                let (Some(v), Some(spec)) = (targets[k], &self.axes[k]) else {
+                let (Some(v), Some(_)) = (targets[k], &self.axes[k]) else {
                     continue;
                 };
-                let base = if relative {
-                    self.planned_end(k, t)
+                let target = if relative && !machine {
+                    self.programmed[k] + v
+                } else if machine {
+                    v
                 } else {
-                    0.0
+                    self.g54[k] + v
                 };
-                abs[k] = Some(((base + v) * spec.steps_per_deg).round() / spec.steps_per_deg);
+                let steps = self.steps(k);
+                abs[k] = Some((target * steps).round() / steps);
+                unquantised[k] = Some(target);
+            }
+            if self.setting(20) != 0.0 {
+                let outside = (0..3)
+                    .any(|k| abs[k].is_some_and(|m| m > 0.0 || m < -self.setting(130 + k as u32)));
+                if outside {
+                    return Err(SOFT_LIMIT);
+                }
+            }
+            for (p, u) in self.programmed.iter_mut().zip(unquantised) {
+                if let Some(u) = u {
+                    *p = u;
+                }
             }
             self.moves += 1;
+            let mut world = [None; 3];
+            for (k, w) in world.iter_mut().enumerate() {
+                *w = unquantised[k].map(|m| self.world_of(k, m));
+            }
             self.queue.push_back(Block {
                 targets: abs,
+                world,
                 move_no: self.moves,
             });
         }
         Ok(Some("ok".into()))
-    }
-
-    /// Where axis `k` will be once every queued block has run.
-    fn planned_end(&self, k: usize, t: f64) -> f64 {
-        let active = match self.active {
-            Some(Active::Move { block, .. }) => block.targets[k],
-            _ => None,
-        };
-        self.queue
-            .iter()
-            .rev()
-            .find_map(|b| b.targets[k])
-            .or(active)
-            .unwrap_or_else(|| self.position(k, t))
     }
 
     /// Starts `block` at rig time `start`.
@@ -605,8 +992,14 @@ impl Grbl {
             let (Some(target), Some(spec)) = (block.targets[k], &self.axes[k]) else {
                 continue;
             };
-            let from = self.position(k, start);
-            if from == target {
+            let from = self.world_at(k, start);
+            // The World lands on the rig's microstep grid, exactly as SimAxis does, so frames
+            // match the simulated rig's; the board's reports quantise to its own `$10x`.
+            let steps = spec.steps_per_deg.max(1e-9);
+            self.rest[k] = None;
+            let exact = block.world[k].unwrap_or_else(|| self.world_of(k, target));
+            let target = (exact * steps).round() / steps;
+            if (from - target).abs() < 1e-12 {
                 continue;
             }
             let traj = Trapezoid::plan(from, target, spec.kinematics());
@@ -676,24 +1069,67 @@ impl Grbl {
                     axes,
                     end_s,
                     cmd_no,
+                    fails,
                 }) if end_s <= t => {
+                    if fails {
+                        // ALARM:9, then the `$H` line's `ok`, then GRBL resets itself.
+                        self.freeze(end_s);
+                        self.lose_position();
+                        self.active = None;
+                        self.status_pending = false;
+                        out.send("ALARM:9\r\n");
+                        self.reply(cmd_no, "ok", end_s, out);
+                        self.mode = Mode::Alarm;
+                        self.reset(end_s, false, out);
+                        return;
+                    }
                     for (k, &homed) in axes.iter().enumerate() {
-                        if let (true, Some(id)) = (homed, self.axis_id(k)) {
-                            self.world.with_axis(id, |a| {
+                        if let (true, Some(spec)) = (homed, self.axes[k].clone()) {
+                            self.world.with_axis(&spec.id, |a| {
                                 a.moving = None;
-                                a.motor_deg = 0.0;
+                                a.motor_deg = spec.home_deg;
                                 a.homed = true;
                                 a.backlash_offset_deg = 0.0;
                             });
+                            self.refs[k] = (spec.home_deg, self.home_machine(k));
+                            self.rest[k] = Some(self.home_machine(k));
+                            self.programmed[k] = self.home_machine(k);
                         }
                     }
                     self.active = None;
+                    if std::mem::take(&mut self.status_pending) {
+                        // The `?` sent during the cycle, answered at its end (still Home).
+                        self.active = Some(Active::Home {
+                            axes,
+                            end_s,
+                            cmd_no,
+                            fails,
+                        });
+                        let report = self.status(end_s);
+                        self.active = None;
+                        out.send(report);
+                    }
                     self.mode = Mode::Idle;
                     self.reply(cmd_no, "ok", end_s, out);
                 }
                 None => match self.next_block() {
                     Some(next) => self.start_block(next, t),
-                    None => return,
+                    None => {
+                        // `G4` waits for the planner to empty, then dwells, then answers.
+                        if let Some((cmd_no, due)) = self.sync
+                            && !self.held
+                            && self.queue.is_empty()
+                        {
+                            let due = due.unwrap_or(t + self.sync_dwell);
+                            if due <= t {
+                                self.sync = None;
+                                self.reply(cmd_no, "ok", due, out);
+                                continue;
+                            }
+                            self.sync = Some((cmd_no, Some(due)));
+                        }
+                        return;
+                    }
                 },
                 _ => return,
             }
@@ -701,7 +1137,7 @@ impl Grbl {
     }
 
     fn next_block(&mut self) -> Option<Block> {
-        if self.held || self.mode == Mode::Alarm {
+        if self.held || self.mode == Mode::Alarm || self.stuck_home {
             return None;
         }
         self.queue.pop_front()
@@ -709,11 +1145,12 @@ impl Grbl {
 
     /// Ends a move in the World as SimAxis does, with backlash on the load side after a move in
     /// the negative direction.
-    fn finish_block(&self, block: Block) {
+    fn finish_block(&mut self, block: Block) {
         for k in 0..3 {
-            let (Some(_), Some(spec)) = (block.targets[k], &self.axes[k]) else {
+            let (Some(m), Some(spec)) = (block.targets[k], &self.axes[k]) else {
                 continue;
             };
+            self.rest[k] = Some(m);
             let backlash = spec.backlash_deg;
             self.world.with_axis(&spec.id, |a| {
                 if let Some((traj, _)) = a.moving.take() {
@@ -744,21 +1181,27 @@ impl Grbl {
 
 impl Firmware for Grbl {
     fn start(&mut self, t: f64, out: &mut Output) {
-        self.last_byte_s = t;
         out.send(BANNER);
         out.send(HOMING_LOCK_MSG);
         self.after_command(0, t, out);
     }
 
     fn receive(&mut self, bytes: &[u8], t: f64, out: &mut Output) {
-        self.last_byte_s = t;
         self.advance(t, out);
         for &b in bytes {
             if out.disconnecting() {
                 return;
             }
             match b {
-                b'?' => out.send(self.status(t)),
+                // Nothing is answered during a homing cycle or a critical alarm.
+                b'?' if matches!(self.active, Some(Active::Home { .. })) => {
+                    self.status_pending = true
+                }
+                b'?' if self.locked_until_reset => {}
+                b'?' => {
+                    let report = self.status(t);
+                    out.send(report);
+                }
                 b'!' => self.feed_hold(t),
                 b'~' => {
                     if self.held {
@@ -783,24 +1226,15 @@ impl Firmware for Grbl {
     fn tick(&mut self, t: f64, out: &mut Output) {
         self.advance(t, out);
         self.process_lines(t, out);
-        if self.laser_on && t - self.last_byte_s >= WATCHDOG_S {
-            self.spindle_on = false;
-            self.set_laser(false);
-        }
     }
 
     fn next_event(&self) -> Option<f64> {
-        let motion = match self.active {
+        match self.active {
             Some(Active::Move { end_s, alarm, .. }) => {
                 Some(alarm.map_or(end_s, |(at, _)| at.min(end_s)))
             }
             Some(Active::Home { end_s, .. }) => Some(end_s),
-            None => None,
-        };
-        let watchdog = self.laser_on.then_some(self.last_byte_s + WATCHDOG_S);
-        match (motion, watchdog) {
-            (Some(a), Some(b)) => Some(a.min(b)),
-            (a, b) => a.or(b),
+            None => self.sync.and_then(|(_, due)| due),
         }
     }
 }

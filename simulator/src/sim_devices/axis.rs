@@ -65,22 +65,23 @@ impl AxisDriver for SimAxis {
     async fn home(&mut self) -> DeviceResult<f64> {
         self.world.clock().sleep_s(COMMAND_LATENCY_S).await;
         let from = self.current();
-        // Homing runs at constant speed (no ramp) toward the switch at 0°.
+        // Homing runs at constant speed (no ramp) toward the home position.
         let speed = self.spec.homing_speed_deg_s;
+        let home = self.spec.home_deg;
         let traj = Trapezoid {
             from_deg: from,
-            to_deg: 0.0,
+            to_deg: home,
             peak_deg_s: speed,
             accel_deg_s2: f64::INFINITY,
             ramp_s: 0.0,
-            cruise_s: from.abs() / speed,
+            cruise_s: (from - home).abs() / speed,
         };
         self.run(traj).await;
         self.world.with_axis(&self.spec.id, |a| {
             a.homed = true;
             a.backlash_offset_deg = 0.0;
         });
-        Ok(0.0)
+        Ok(home)
     }
 
     async fn move_to(&mut self, target_deg: f64) -> DeviceResult<f64> {

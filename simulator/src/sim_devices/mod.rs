@@ -4,6 +4,7 @@ mod axis;
 mod camera;
 mod cart;
 mod laser;
+mod mirror;
 mod switches;
 mod trigger;
 
@@ -11,6 +12,7 @@ pub use axis::SimAxis;
 pub use camera::SimCamera;
 pub use cart::SimCart;
 pub use laser::SimLaser;
+pub use mirror::{MirroredAxis, MirroredLaser};
 pub use switches::SimSwitchBank;
 pub use trigger::SimTrigger;
 
