@@ -262,28 +262,29 @@ fn library_cameras() -> Vec<CameraEntry> {
 
 #[cfg(feature = "cam-aravis")]
 fn aravis_cameras() -> Vec<CameraEntry> {
-    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
-    let Ok(_guard) = LOCK.lock() else {
-        return Vec::new();
-    };
-    // SAFETY: aravis's device list is global state; the lock above makes this the only
-    // caller in this process.
-    let list = unsafe { aravis::get_device_list() };
-    list.into_iter()
+    crate::cameras::aravis::list_devices()
+        .into_iter()
         .map(|d| {
-            let id = d.id.to_string_lossy().into_owned();
+            let serial = if d.serial.is_empty() {
+                "-".to_string()
+            } else {
+                d.serial.clone()
+            };
+            // The id is stable (vendor, model, serial); the address may change with DHCP.
+            let rig_snippet = format!(
+                "[[camera]]\nbackend = \"aravis\"\nport = \"{}\"  # or the address \"{}\" or the serial \"{}\"",
+                d.id, d.address, serial
+            );
             CameraEntry {
                 backend: "aravis".into(),
-                path: id.clone(),
-                by_id: None,
                 name: format!(
-                    "{} {} ({})",
-                    d.vendor.to_string_lossy(),
-                    d.model.to_string_lossy(),
-                    d.protocol.to_string_lossy()
+                    "{} {} ({}) at {}, serial {serial}",
+                    d.vendor, d.model, d.protocol, d.address
                 ),
+                path: d.id,
+                by_id: None,
                 index: None,
-                rig_snippet: format!("[[camera]]\nbackend = \"aravis\"\nport = \"{id}\""),
+                rig_snippet,
             }
         })
         .collect()

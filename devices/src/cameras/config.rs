@@ -176,6 +176,18 @@ pub fn v4l_gain_value(
     min: i64,
     max: i64,
 ) -> DeviceResult<i64> {
+    linear_gain_value(device, gain, max_gain, min, max)
+}
+
+/// A raw gain register in device-specific units (V4L2 `gain`, GenICam `GainRaw`) for linear
+/// `gain`: gain 1 is the register's minimum and the rig's `max_gain` its maximum, linearly.
+pub fn linear_gain_value(
+    device: &str,
+    gain: f64,
+    max_gain: f64,
+    min: i64,
+    max: i64,
+) -> DeviceResult<i64> {
     if !(gain.is_finite() && gain >= 1.0 && gain <= max_gain) {
         return Err(DeviceError::Gain {
             device: device.to_string(),
@@ -413,6 +425,8 @@ mod tests {
         assert_eq!(v4l_gain_value("c", 8.5, 16.0, 0, 100), Ok(50));
         assert!(v4l_gain_value("c", 0.5, 16.0, 0, 255).is_err());
         assert!(v4l_gain_value("c", 17.0, 16.0, 0, 255).is_err());
+        // aravis's fake camera: GainRaw 0..=10 with max_gain 11 is gain − 1.
+        assert_eq!(linear_gain_value("c", 3.0, 11.0, 0, 10), Ok(2));
         let db = gain_db("c", 10.0, 0.0, 24.0).expect("in range");
         assert!((db - 20.0).abs() < 1e-9);
         assert!(gain_db("c", 1.0, 0.0, 24.0).is_ok());

@@ -201,7 +201,9 @@ mod worker {
     /// One image as the library delivered it, with the camera's own sequence number.
     pub struct RawFrame {
         pub sequence: u64,
-        /// Converted image, or why it could not be converted (the frame still counts).
+        /// Converted image, or why it could not be converted (the frame still counts). A
+        /// frame that arrived incomplete is [`DeviceError::MissingFrame`]; the worker fills in
+        /// the trigger it answers, so it is reported like a frame that never came.
         pub image: DeviceResult<Image>,
     }
 
@@ -231,6 +233,11 @@ mod worker {
         /// Modulus of the sequence counter (0 = u64).
         fn sequence_wrap(&self) -> u64 {
             0
+        }
+        /// What the camera reports about the frame just grabbed (settings read back), kept
+        /// in the frame's notes under `camera`.
+        fn frame_notes(&self) -> Option<serde_json::Value> {
+            None
         }
     }
 
@@ -355,16 +362,26 @@ mod worker {
                 .map_err(|_| self.gone())
         }
 
-        /// The next accounted frame or error. A missing-frame report about an older trigger
-        /// than the one last announced is skipped: the camera actor has already given up on
-        /// that trigger with its own timeout.
+        /// The next accounted frame or error. A missing-frame report or a late frame about
+        /// another trigger than the one last announced is skipped: that trigger was already
+        /// answered (the camera actor gave up on it with its own timeout), so its late frame
+        /// would otherwise be taken for the next trigger's.
         pub async fn next_frame(&mut self) -> DeviceResult<Frame> {
             loop {
                 let item = self.frames.recv().await.ok_or_else(|| self.gone())?;
-                if let Err(DeviceError::MissingFrame { trigger_id, .. }) = &item
-                    && self.last_expected.is_some_and(|t| t != *trigger_id)
-                {
-                    tracing::warn!(device = %self.device, trigger_id, "stale missing-frame report");
+                let stale = match &item {
+                    Err(DeviceError::MissingFrame { trigger_id, .. }) => Some(*trigger_id),
+                    Ok(f) => Some(f.trigger_id),
+                    Err(_) => None,
+                }
+                .filter(|t| self.last_expected.is_some_and(|last| last != *t));
+                if let Some(trigger_id) = stale {
+                    let what = if item.is_ok() {
+                        "late frame"
+                    } else {
+                        "missing-frame report"
+                    };
+                    tracing::warn!(device = %self.device, trigger_id, "stale {what} dropped");
                     continue;
                 }
                 return item;
@@ -390,14 +407,16 @@ mod worker {
                 tracing::warn!(device = %device, "frame queue full or closed; frame dropped");
             }
         };
-        let mut held: Option<(RawFrame, f64)> = None;
+        let mut held: Option<(RawFrame, f64, Option<serde_json::Value>)> = None;
         // Accounts for one frame and sends the outcome: errors for frames lost before it,
-        // then the frame tagged with its trigger (a late frame keeps its own old id, which the
-        // camera actor reports as unexpected), or an error for an extra frame.
-        let judge = |acc: &mut TriggerAccounting, raw: RawFrame, at: f64| {
-            for e in acc.expire(at) {
-                send(Err(e));
-            }
+        // then the frame tagged with its trigger (a late frame keeps its own old id, and the
+        // link drops it as stale), or an error for an extra frame. A frame is matched before
+        // the deadlines are looked at (the loop does that after every grab): one that was
+        // already there when a busy worker got to it still answers its trigger.
+        let judge = |acc: &mut TriggerAccounting,
+                     raw: RawFrame,
+                     at: f64,
+                     camera_notes: Option<serde_json::Value>| {
             let d = acc.on_frame(raw.sequence);
             for t in d.lost {
                 send(Err(DeviceError::MissingFrame {
@@ -414,7 +433,22 @@ mod worker {
                     return;
                 }
             };
-            send(raw.image.map(|img| Frame {
+            let mut notes = serde_json::json!({ "sequence": raw.sequence });
+            if let Some(c) = camera_notes {
+                notes["camera"] = c;
+            }
+            let image = match raw.image {
+                // An incomplete frame: lost, like one that never came, for this trigger.
+                Err(DeviceError::MissingFrame {
+                    device, timeout_s, ..
+                }) => Err(DeviceError::MissingFrame {
+                    device,
+                    trigger_id,
+                    timeout_s,
+                }),
+                other => other,
+            };
+            send(image.map(|img| Frame {
                 camera: device.clone(),
                 trigger_id,
                 width: img.width,
@@ -424,7 +458,7 @@ mod worker {
                 exposure_s: settings.get().0,
                 gain: settings.get().1,
                 rig_time_s: at,
-                notes: serde_json::json!({ "sequence": raw.sequence }),
+                notes,
                 ground_truth: None,
             }));
         };
@@ -475,12 +509,19 @@ mod worker {
                             continue;
                         }
                         acc.expect(id, now(), frame_timeout_s(e, cam.readout_s()));
-                        if let Some((raw, at)) = held.take() {
-                            judge(&mut acc, raw, at);
+                        if let Some((raw, at, notes)) = held.take() {
+                            judge(&mut acc, raw, at, notes);
                         } else if mode == TriggerMode::Software
                             && let Err(err) = cam.software_trigger()
                         {
-                            send(Err(err));
+                            if err.is_recoverable() {
+                                // The link failed: the trigger stays pending, so its deadline
+                                // reports the frame missing (or a frame that does come is
+                                // still matched to it).
+                                tracing::warn!(device = %device, trigger_id = id, "software trigger failed: {err}");
+                            } else {
+                                send(Err(err));
+                            }
                         }
                     }
                 }
@@ -493,23 +534,24 @@ mod worker {
                 Err(e) => send(Err(e)),
                 Ok(Some(raw)) => {
                     let at = now();
+                    let notes = cam.frame_notes();
                     // A frame before any announced trigger may be early rather than extra:
                     // hold it briefly. A second one means the first was extra.
                     if acc.is_idle() {
-                        if let Some((old, _)) = held.take() {
-                            judge(&mut acc, old, at);
+                        if let Some((old, _, old_notes)) = held.take() {
+                            judge(&mut acc, old, at, old_notes);
                         }
-                        held = Some((raw, at));
+                        held = Some((raw, at, notes));
                     } else {
-                        judge(&mut acc, raw, at);
+                        judge(&mut acc, raw, at, notes);
                     }
                 }
             }
-            if let Some((_, since)) = &held
+            if let Some((_, since, _)) = &held
                 && now() - since > EARLY_FRAME_GRACE_S
-                && let Some((raw, since)) = held.take()
+                && let Some((raw, since, notes)) = held.take()
             {
-                judge(&mut acc, raw, since);
+                judge(&mut acc, raw, since, notes);
             }
             for e in acc.expire(now()) {
                 send(Err(e));
@@ -601,5 +643,34 @@ mod worker_tests {
             .expect("in time")
             .unwrap_err();
         assert!(matches!(e, DeviceError::UnexpectedFrame { .. }), "{e}");
+    }
+
+    /// A frame that comes after its trigger was reported missing keeps its own trigger id and
+    /// is dropped as stale: the next trigger gets its own frame, not the late one.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn late_frame_is_not_taken_for_the_next_trigger() {
+        let q = Arc::new(Mutex::new(Vec::new()));
+        let q2 = q.clone();
+        let mut link =
+            Link::spawn("m", TriggerMode::Hardware, move || Ok(Mock(q2))).expect("spawn");
+        link.set_armed(true).await.expect("arm");
+        link.expect(1, 0.0).expect("expect");
+        let e = tokio::time::timeout(Duration::from_secs(10), link.next_frame())
+            .await
+            .expect("the deadline passes")
+            .unwrap_err();
+        assert!(
+            matches!(e, DeviceError::MissingFrame { trigger_id: 1, .. }),
+            "{e}"
+        );
+        // Trigger 1's frame (sequence 5) turns up late, then trigger 2's (6).
+        q.lock().expect("lock").push(5);
+        link.expect(2, 0.0).expect("expect");
+        q.lock().expect("lock").insert(0, 6);
+        let f = tokio::time::timeout(Duration::from_secs(10), link.next_frame())
+            .await
+            .expect("in time")
+            .expect("frame");
+        assert_eq!((f.trigger_id, f.notes["sequence"].as_u64()), (2, Some(6)));
     }
 }
