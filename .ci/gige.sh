@@ -26,8 +26,9 @@ if [ -n "$missing" ]; then
     DEBIAN_FRONTEND=noninteractive $sudo_ apt-get install -y -qq $missing >/dev/null
 fi
 
-echo "== cargo test --no-run (build outside the namespace: it may need crates.io)"
+echo "== cargo test --no-run, cargo build (outside the namespace: they may need crates.io)"
 cargo test -p stagehand-devices --features cam-aravis --test aravis_gige --no-run
+cargo build -p stagehand --features cam-aravis
 
 # aravis's discovery broadcasts on every interface that is up, so the cameras and the tests run
 # in a private network namespace with only loopback: nothing leaves the machine.
@@ -39,3 +40,30 @@ $sudo_ unshare --net -- env STAGEHAND_REQUIRE_PEERS=1 bash -euo pipefail -c '
     done
     cargo test --offline -p stagehand-devices --features cam-aravis --test aravis_gige -- "$@"
 ' gige "$@"
+
+# The whole quickstart with the 8 GigE cameras real (through aravis) and the serial devices
+# (GRBL, relay board) on their emulators: every step done, every frame from a fake camera
+# (512×512, the fake's size; the simulated cameras would be 1024×768).
+echo "== in a private network namespace: the quickstart on 8 GigE cameras and emulated serial devices"
+$sudo_ unshare --net -- bash -euo pipefail -c '
+    ip link set lo up
+    pids=""
+    for n in 2 3 4 5 6 7 8 9; do
+        ip -4 -o addr show dev lo | grep -q "inet 127.0.0.$n/" || ip addr add "127.0.0.$n/8" dev lo
+        arv-fake-gv-camera-0.8 -i "127.0.0.$n" -s "GV0$n" >/dev/null 2>&1 &
+        pids="$pids $!"
+    done
+    trap "kill $pids 2>/dev/null" EXIT
+    sleep 2
+    out="$(mktemp -d)"
+    "${CARGO_TARGET_DIR:-target}/debug/stagehand" run --rig devices/rigs/lightstage-gige.toml \
+        --emulate sequences/quickstart.rhai --yes --out "$out"
+    db="$(ls -d "$out"/*/index.sqlite)"
+    python3 - "$db" <<PY
+import sqlite3, sys
+rows = sqlite3.connect(sys.argv[1]).execute(
+    "SELECT count(*), min(width), max(width), min(height), max(height) FROM frames WHERE kind = '"'"'raw'"'"'").fetchone()
+assert rows == (72, 512, 512, 512, 512), rows
+print("quickstart on 8 GigE cameras: 72 raw frames, all 512x512 from the fake cameras")
+PY
+'

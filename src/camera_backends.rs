@@ -45,6 +45,13 @@ pub(crate) fn open(
     }
 }
 
+/// True if this build has the driver for camera backend `b` (its Cargo feature is on).
+pub(crate) fn compiled(b: Backend) -> bool {
+    (b == Backend::V4l && cfg!(feature = "cam-v4l"))
+        || (b == Backend::Aravis && cfg!(feature = "cam-aravis"))
+        || (b == Backend::Gphoto2 && cfg!(feature = "cam-gphoto2"))
+}
+
 /// The build lacks `feature` for camera `c` (unused when every camera feature is on).
 #[allow(dead_code)]
 fn no_driver(c: &CameraSpec, feature: &'static str) -> OpenError {

@@ -342,7 +342,15 @@ pub(crate) fn open_devices(
             }
             // Software-triggered real cameras expose when told the trigger id; simulated
             // cameras still need the world's trigger line.
-            (Backend::Software, None) => TriggerHandle::spawn(t.clone(), SoftwareTrigger),
+            (Backend::Software, w)
+                if w.is_none()
+                    || !spec
+                        .cameras
+                        .iter()
+                        .any(|c| simulated_camera(c, emulation.is_some())) =>
+            {
+                TriggerHandle::spawn(t.clone(), SoftwareTrigger)
+            }
             (_, Some(w)) => TriggerHandle::spawn(t.clone(), SimTrigger::new(w.clone())),
             (_, None) => {
                 return Err(OpenError::Simulator(
@@ -436,13 +444,20 @@ pub(crate) fn lock_real_ports(
 
 /// A camera: simulated (also every camera of an emulated rig: the world renders its frames),
 /// or a real backend compiled into this build.
+/// True if camera `c` renders from the simulated World: a `sim` camera, or under `--emulate` a
+/// camera whose backend this build lacks (real cameras that can be opened stay real: they have
+/// no serial port to emulate).
+fn simulated_camera(c: &CameraSpec, emulate: bool) -> bool {
+    c.backend == Backend::Sim || (emulate && !crate::camera_backends::compiled(c.backend))
+}
+
 fn open_camera(
     c: &CameraSpec,
     trigger: Option<&stagehand_devices::rig::TriggerSpec>,
     world: &Option<Arc<World>>,
     emulate: bool,
 ) -> Result<CameraHandle, OpenError> {
-    if c.backend == Backend::Sim || emulate {
+    if simulated_camera(c, emulate) {
         return Ok(CameraHandle::spawn(
             c.clone(),
             SimCamera::new(c.clone(), world_of(world)?.clone()),
