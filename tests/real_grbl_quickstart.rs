@@ -157,3 +157,43 @@ fn quickstart_runs_on_the_real_grbl_firmware() {
         );
     }
 }
+
+/// `stagehand devices --check --rig RIG` against the real board: `ok` and exit 0 for a board
+/// set up for the rig; exit 1 naming the `$N=` to send for one that is not.
+#[test]
+fn devices_check_reports_a_board_fit_or_the_settings_to_send() {
+    let _one_at_a_time = grbl_peer::exclusive();
+    for (extra, fit, want) in [
+        ("", true, "ok: fit for the rig"),
+        ("$32=1", false, "`$32=0`"),
+    ] {
+        let Some(board) = Board::start(Build::SingleAxis, &format!("{BOARD} {extra}")) else {
+            return;
+        };
+        let dir = tempfile::tempdir().expect("dir");
+        let rig_file = dir.path().join("rig.toml");
+        std::fs::write(&rig_file, rig(Some(&board.link)).text).expect("write rig");
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_stagehand"))
+            .args(["devices", "--check", "--rig"])
+            .arg(&rig_file)
+            .output()
+            .expect("run stagehand");
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert_eq!(out.status.success(), fit, "{extra}: {text}");
+        assert!(text.contains(want), "{extra}: {text}");
+        assert!(
+            text.contains("GRBL board on") && text.contains("turntable"),
+            "{text}"
+        );
+        assert!(
+            text.contains("no watchdog"),
+            "the GRBL laser has none: {text}"
+        );
+        if fit {
+            assert!(
+                text.contains("1.1h.20190830") && text.contains("single-axis homing"),
+                "{text}"
+            );
+        }
+    }
+}
