@@ -8,7 +8,9 @@ use stagehand_devices::clock::RigClock;
 use tokio::sync::broadcast;
 
 use crate::estimate::{Estimate, estimate};
-use crate::executor::{Event, Execution, Operator, RunControl, RunError, Summary, WriterHandle};
+use crate::executor::{
+    Event, Execution, Operator, RunControl, RunError, Start, Summary, WriterHandle,
+};
 use crate::hardware::Emulation;
 use crate::plan::Plan;
 use crate::rig::{Rig, RigSource};
@@ -190,6 +192,19 @@ pub async fn run(
     rig: Rig,
     wiring: Wiring,
 ) -> Result<Summary, SessionError> {
+    run_from(prepared, store, rig, wiring, Start::Establish).await
+}
+
+/// [`run`], choosing how the rig reaches the first step: [`Start::InPlace`] takes it as it is
+/// (nothing homes or switches first, and a completed run leaves it so: the daemon's single
+/// capture).
+pub async fn run_from(
+    prepared: Prepared,
+    store: RunStore,
+    rig: Rig,
+    wiring: Wiring,
+    start: Start,
+) -> Result<Summary, SessionError> {
     execute(
         rig,
         Arc::new(prepared.plan),
@@ -197,6 +212,7 @@ pub async fn run(
         store,
         std::collections::BTreeSet::new(),
         wiring,
+        start,
     )
     .await
 }
@@ -262,6 +278,7 @@ pub async fn resume_on(
         store,
         done,
         wiring,
+        Start::Establish,
     )
     .await
 }
@@ -273,6 +290,7 @@ async fn execute(
     store: RunStore,
     done: std::collections::BTreeSet<usize>,
     wiring: Wiring,
+    start: Start,
 ) -> Result<Summary, SessionError> {
     let writer = WriterHandle::spawn(store, wiring.events.clone(), wiring.reserve_bytes)
         .map_err(|e| SessionError::Io(format!("cannot start the writer thread: {e}")))?;
@@ -285,6 +303,7 @@ async fn execute(
         operator: wiring.operator,
         writer,
         done,
+        start,
     };
     Ok(exec.run().await?)
 }

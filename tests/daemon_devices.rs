@@ -288,6 +288,24 @@ async fn the_estop_stops_a_long_move_switches_everything_off_and_latches() {
         let report = api.ok("/api/estop", None);
         assert_eq!(report["active"], true, "{report}");
         assert!(report["errors"].as_array().unwrap().is_empty(), "{report}");
+        let snapshot = &report["devices"];
+        assert!(
+            snapshot["lamps"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .all(|l| l["on"] == false),
+            "the e-stop's own snapshot shows every lamp off: {snapshot}"
+        );
+        assert_eq!(snapshot["laser"]["on"], false, "{snapshot}");
+        assert!(
+            snapshot["axes"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .all(|a| a["homed"] == false),
+            "stopped abruptly, every axis must be homed again: {snapshot}"
+        );
         let elapsed_ms = report["elapsed_ms"].as_f64().unwrap();
 
         let (s, v) = long_move.join().expect("the mover thread");
@@ -336,6 +354,13 @@ async fn the_estop_stops_a_long_move_switches_everything_off_and_latches() {
 
         let v = api.ok("/api/estop/reset", None);
         assert_eq!(v["active"], false);
+        assert_eq!(api.axis("turntable")["homed"], false);
+        let (s, v) = api.post(
+            "/api/axes/turntable/move",
+            Some(json!({"target_deg": 10.0})),
+        );
+        assert_eq!(s, 409, "not homed after the e-stop: {v}");
+        api.ok("/api/axes/turntable/home", None);
         let v = api.ok(
             "/api/axes/turntable/move",
             Some(json!({"target_deg": 10.0})),
@@ -451,7 +476,13 @@ async fn hold_to_jog_stops_when_the_client_goes_quiet() {
     .await;
     assert!(v["error"].as_str().unwrap().contains("e-stop"), "{v}");
     let http = Api::operator(&d);
-    common::blocking(move || http.ok("/api/estop/reset", None)).await;
+    common::blocking(move || {
+        http.ok("/api/estop/reset", None);
+        // The e-stop forgot the home (the stepper may have lost steps).
+        assert_eq!(http.axis("turntable")["homed"], false);
+        http.ok("/api/axes/turntable/home", None);
+    })
+    .await;
 
     // An explicit stop, then closing the socket mid-jog, stop the axis too.
     ws.send(Message::text(

@@ -476,13 +476,48 @@ async fn runs_with_prompts_pause_abort_resume_and_capture() {
                 .iter()
                 .all(|f| f["exposure_s"] == 0.01 && f["gain"] == 2.0)
         );
+        // In place: at the turntable's position with the lamp on, and both left so.
+        api.ok(
+            "/api/axes/turntable/move",
+            Some(json!({"target_deg": 40.0})),
+        );
+        api.ok("/api/lamps/lamp1", Some(json!({"on": true})));
+        let (status, cap) = api.post(
+            "/api/capture",
+            Some(json!({"cameras": ["cam1"], "exposure_s": 0.01})),
+        );
+        assert_eq!(status, 200, "{cap}");
+        let f = &cap["frames"][0];
+        assert!(
+            (f["axes_deg"]["turntable"].as_f64().unwrap_or(0.0) - 40.0).abs() < 0.01,
+            "{f}"
+        );
+        assert!(f["lamps_on"].to_string().contains("lamp1"), "{f}");
+        let devices = api.get("/api/status").1["devices"].clone();
+        let turntable = devices["axes"]
+            .as_array()
+            .and_then(|a| a.iter().find(|a| a["id"] == "turntable"))
+            .cloned()
+            .unwrap_or_default();
+        assert!(
+            (turntable["position_deg"].as_f64().unwrap_or(0.0) - 40.0).abs() < 0.01,
+            "not re-homed: {turntable}"
+        );
+        assert!(
+            devices["lamps"]
+                .as_array()
+                .is_some_and(|l| l.iter().any(|l| l["id"] == "lamp1" && l["on"] == true)),
+            "the lamp stays on: {devices}"
+        );
+        api.ok("/api/lamps/off", None);
 
         // The list: newest first, all of them.
         let (status, runs) = api.get("/api/runs");
         assert_eq!(status, 200);
         let runs = runs.as_array().expect("runs");
-        assert_eq!(runs.len(), 4, "{runs:?}");
-        assert_eq!(runs[0]["run_id"], cap_id.as_str());
+        assert_eq!(runs.len(), 5, "{runs:?}");
+        assert_eq!(runs[0]["run_id"], cap["run_id"], "the newest first");
+        assert_eq!(runs[1]["run_id"], cap_id.as_str());
     })
     .await;
     d.shutdown().await;

@@ -42,6 +42,10 @@ enum Cmd {
     Position(oneshot::Sender<DeviceResult<f64>>),
 }
 
+/// A stop: whether it forgets the home (an e-stop: a stepper stopped abruptly may have lost
+/// steps), and where to send the position it stopped at.
+type StopRequest = (bool, oneshot::Sender<DeviceResult<f64>>);
+
 /// Cheap-to-clone handle to the task that owns one axis.
 #[derive(Clone)]
 pub struct AxisHandle {
@@ -50,7 +54,7 @@ pub struct AxisHandle {
     /// GRBL board runs its axes' moves one after another) and for a reconnect's handshake.
     shared_s: f64,
     tx: mpsc::Sender<Cmd>,
-    stop_tx: mpsc::Sender<oneshot::Sender<DeviceResult<f64>>>,
+    stop_tx: mpsc::Sender<StopRequest>,
     status: watch::Receiver<AxisStatus>,
 }
 
@@ -153,7 +157,20 @@ impl AxisHandle {
     /// Stops the axis now, interrupting a move in progress.
     pub async fn stop(&self) -> DeviceResult<f64> {
         let timeout = MARGIN_S + self.shared_s;
-        call(&self.spec.id, &self.stop_tx, "stop", timeout, |tx| tx).await
+        call(&self.spec.id, &self.stop_tx, "stop", timeout, |tx| {
+            (false, tx)
+        })
+        .await
+    }
+
+    /// Stops the axis now, as [`stop`](Self::stop), and marks it not homed: after an e-stop a
+    /// stepper may have lost steps, so its position must be found again by homing.
+    pub async fn emergency_stop(&self) -> DeviceResult<f64> {
+        let timeout = MARGIN_S + self.shared_s;
+        call(&self.spec.id, &self.stop_tx, "stop", timeout, |tx| {
+            (true, tx)
+        })
+        .await
     }
 
     async fn request(
@@ -170,15 +187,15 @@ async fn run_actor<D: AxisDriver>(
     spec: Arc<AxisSpec>,
     mut driver: D,
     mut rx: mpsc::Receiver<Cmd>,
-    mut stop_rx: mpsc::Receiver<oneshot::Sender<DeviceResult<f64>>>,
+    mut stop_rx: mpsc::Receiver<StopRequest>,
     status: watch::Sender<AxisStatus>,
 ) {
     loop {
         tokio::select! {
             biased;
-            Some(reply) = stop_rx.recv() => {
+            Some((unhome, reply)) = stop_rx.recv() => {
                 let r = driver.stop().await;
-                publish(&status, &r, None, false);
+                publish(&status, &r, unhome.then_some(false), false);
                 let _ = reply.send(r);
             }
             cmd = rx.recv() => {
@@ -193,7 +210,7 @@ async fn run_actor<D: AxisDriver>(
                         status.send_modify(|s| s.moving = true);
                         let r = tokio::select! {
                             r = home_and_settle(&spec, &mut driver) => r,
-                            Some(stop_reply) = stop_rx.recv() => {
+                            Some((_, stop_reply)) = stop_rx.recv() => {
                                 let r = driver.stop().await;
                                 let _ = stop_reply.send(r.clone());
                                 publish(&status, &r, Some(false), false);
@@ -208,11 +225,11 @@ async fn run_actor<D: AxisDriver>(
                         status.send_modify(|s| s.moving = true);
                         let r = tokio::select! {
                             r = approach(&spec, &mut driver, target, status.borrow().position_deg) => r,
-                            Some(stop_reply) = stop_rx.recv() => {
+                            Some((unhome, stop_reply)) = stop_rx.recv() => {
                                 let r = driver.stop().await;
                                 let _ = stop_reply.send(r.clone());
                                 // Where it stopped (the error below carries no position).
-                                publish(&status, &r, None, false);
+                                publish(&status, &r, unhome.then_some(false), false);
                                 r.and(Err(DeviceError::Other { device: spec.id.clone(), message: "move interrupted by stop".into() }))
                             }
                         };
@@ -309,8 +326,8 @@ mod tests {
         }
     }
 
-    #[tokio::test(start_paused = true)]
-    async fn a_stop_interrupts_a_move_and_publishes_where_the_axis_stopped() {
+    /// The built-in turntable on the slow driver, homed, one second into a long move.
+    async fn homed_turntable_moving() -> (AxisHandle, tokio::task::JoinHandle<DeviceResult<f64>>) {
         let spec = parse_rig(BUILTIN_LIGHTSTAGE, "lightstage.toml")
             .unwrap()
             .axes
@@ -322,6 +339,12 @@ mod tests {
         let mover = axis.clone();
         let moving = tokio::spawn(async move { mover.move_to(300.0).await });
         tokio::time::sleep(std::time::Duration::from_secs(1)).await;
+        (axis, moving)
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_stop_interrupts_a_move_and_publishes_where_the_axis_stopped() {
+        let (axis, moving) = homed_turntable_moving().await;
         assert!(axis.status().moving);
         assert_eq!(axis.stop().await.unwrap(), 42.0);
         assert!(
@@ -331,5 +354,26 @@ mod tests {
         let s = axis.status();
         assert!(!s.moving);
         assert_eq!(s.position_deg, 42.0, "the status says where it stopped");
+        assert!(
+            s.homed,
+            "an ordinary stop (the end of a jog) keeps the home"
+        );
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn an_emergency_stop_mid_move_forgets_the_home() {
+        let (axis, moving) = homed_turntable_moving().await;
+        assert_eq!(axis.emergency_stop().await.unwrap(), 42.0);
+        assert!(moving.await.unwrap().is_err());
+        let s = axis.status();
+        assert!(!s.homed, "it may have lost steps: it must be homed again");
+        assert!(matches!(
+            axis.move_to(10.0).await,
+            Err(DeviceError::NotHomed { .. })
+        ));
+        // An e-stop of an axis standing still forgets the home too.
+        axis.home().await.unwrap();
+        axis.emergency_stop().await.unwrap();
+        assert!(!axis.status().homed);
     }
 }

@@ -6,6 +6,7 @@ use std::sync::Arc;
 use tokio::sync::{mpsc, oneshot};
 
 use crate::clock::duration_s;
+use crate::compute_time::ComputeTime;
 use crate::error::{DeviceError, DeviceResult};
 use crate::frame::Frame;
 use crate::request::call;
@@ -37,6 +38,11 @@ pub trait CameraDriver: Send + 'static {
         let _ = (trigger_id, exposure_s);
         async { Ok(()) }
     }
+    /// For a simulated camera, the account of its rendering time, which frame timeouts do not
+    /// count (the physical camera it stands in for would not spend it); `None` for hardware.
+    fn compute_time(&self) -> Option<ComputeTime> {
+        None
+    }
 }
 
 enum Cmd {
@@ -51,6 +57,9 @@ enum Cmd {
 pub struct CameraHandle {
     spec: Arc<CameraSpec>,
     tx: mpsc::Sender<Cmd>,
+    /// Rendering time of a simulated camera (never counted against a frame's timeout).
+    compute: ComputeTime,
+    simulated: bool,
 }
 
 /// Slack beyond exposure + readout before a frame is declared missing.
@@ -61,8 +70,15 @@ impl CameraHandle {
     pub fn spawn<D: CameraDriver>(spec: CameraSpec, driver: D) -> Self {
         let (tx, rx) = mpsc::channel(8);
         let spec = Arc::new(spec);
-        tokio::spawn(run_actor(spec.clone(), driver, rx));
-        Self { spec, tx }
+        let simulated = driver.compute_time();
+        let compute = simulated.clone().unwrap_or_default();
+        tokio::spawn(run_actor(spec.clone(), driver, rx, compute.clone()));
+        Self {
+            spec,
+            tx,
+            compute,
+            simulated: simulated.is_some(),
+        }
     }
 
     pub fn id(&self) -> &str {
@@ -120,12 +136,40 @@ impl CameraHandle {
 
     /// Collects the frame for `trigger_id`. Waits at most exposure + readout + margin; a
     /// frame of another trigger is an error, never silently accepted.
+    /// A simulated camera's rendering time is not counted, and its failures say they are
+    /// simulated faults rather than sending anyone to check a cable.
     pub async fn frame_for(&self, trigger_id: u64, exposure_s: f64) -> DeviceResult<Frame> {
         let wait_s = exposure_s + self.spec.readout_s() + MARGIN_S;
-        call(&self.spec.id, &self.tx, "frame", wait_s + MARGIN_S, |tx| {
-            Cmd::FrameFor(trigger_id, wait_s, tx)
-        })
-        .await
+        let timeout_s = wait_s + MARGIN_S;
+        let id = &self.spec.id;
+        let gone = || DeviceError::Gone { device: id.clone() };
+        let (reply, rx) = oneshot::channel();
+        self.tx
+            .send(Cmd::FrameFor(trigger_id, wait_s, reply))
+            .await
+            .map_err(|_| gone())?;
+        let r = match self.compute.timeout(duration_s(timeout_s), rx).await {
+            Some(Ok(r)) => r,
+            Some(Err(_)) => Err(gone()),
+            None => Err(DeviceError::Timeout {
+                device: id.clone(),
+                request: "frame".into(),
+                timeout_s,
+            }),
+        };
+        match r {
+            Err(
+                DeviceError::Timeout { timeout_s, .. }
+                | DeviceError::MissingFrame { timeout_s, .. },
+            ) if self.simulated => Err(DeviceError::SimulatedFault {
+                device: id.clone(),
+                request: "frame".into(),
+                message: format!(
+                    "no frame for trigger {trigger_id} within {timeout_s:.3} s of rig time (rendering not counted)"
+                ),
+            }),
+            other => other,
+        }
     }
 }
 
@@ -133,6 +177,7 @@ async fn run_actor<D: CameraDriver>(
     spec: Arc<CameraSpec>,
     mut driver: D,
     mut rx: mpsc::Receiver<Cmd>,
+    compute: ComputeTime,
 ) {
     while let Some(cmd) = rx.recv().await {
         match cmd {
@@ -149,19 +194,24 @@ async fn run_actor<D: CameraDriver>(
                 let _ = reply.send(driver.expect(id, exposure_s).await);
             }
             Cmd::FrameFor(id, wait_s, reply) => {
-                let r = match tokio::time::timeout(duration_s(wait_s), driver.next_frame()).await {
-                    Err(_) => Err(DeviceError::MissingFrame {
+                let r = match compute
+                    .timeout(duration_s(wait_s), driver.next_frame())
+                    .await
+                {
+                    None => Err(DeviceError::MissingFrame {
                         device: spec.id.clone(),
                         trigger_id: id,
                         timeout_s: wait_s,
                     }),
-                    Ok(Err(e)) => Err(e),
-                    Ok(Ok(frame)) if frame.trigger_id != id => Err(DeviceError::UnexpectedFrame {
-                        device: spec.id.clone(),
-                        expected: id,
-                        got: frame.trigger_id,
-                    }),
-                    Ok(Ok(frame)) => Ok(frame),
+                    Some(Err(e)) => Err(e),
+                    Some(Ok(frame)) if frame.trigger_id != id => {
+                        Err(DeviceError::UnexpectedFrame {
+                            device: spec.id.clone(),
+                            expected: id,
+                            got: frame.trigger_id,
+                        })
+                    }
+                    Some(Ok(frame)) => Ok(frame),
                 };
                 let _ = reply.send(r);
             }

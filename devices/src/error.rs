@@ -145,6 +145,16 @@ pub enum DeviceError {
         wanted: &'static str,
         reason: String,
     },
+    /// A fault of a simulated device (one injected into the simulation, or a stall of the
+    /// simulator): there is no cable or port to check.
+    #[error(
+        "{device}: `{request}`: {message}; this is a simulated device, so nothing on the rig needs checking (a fault injected into the simulation, or a simulator bug if none was)"
+    )]
+    SimulatedFault {
+        device: String,
+        request: String,
+        message: String,
+    },
     #[error("{device}: {message}")]
     Other { device: String, message: String },
 }
@@ -178,6 +188,7 @@ impl DeviceError {
             | DeviceError::Misconfigured { device, .. }
             | DeviceError::HomingFailed { device, .. }
             | DeviceError::LaserNotSwitched { device, .. }
+            | DeviceError::SimulatedFault { device, .. }
             | DeviceError::Other { device, .. } => device,
         }
     }
@@ -210,6 +221,7 @@ impl DeviceError {
             | DeviceError::Misconfigured { device, .. }
             | DeviceError::HomingFailed { device, .. }
             | DeviceError::LaserNotSwitched { device, .. }
+            | DeviceError::SimulatedFault { device, .. }
             | DeviceError::Other { device, .. } => device,
         }
     }
@@ -236,6 +248,7 @@ impl DeviceError {
                 | DeviceError::NotHomed { .. }
                 | DeviceError::MissingFrame { .. }
                 | DeviceError::UnexpectedFrame { .. }
+                | DeviceError::SimulatedFault { .. }
         )
     }
 }

@@ -8,6 +8,7 @@ pub mod camera;
 pub mod cameras;
 pub mod cart;
 pub mod clock;
+pub mod compute_time;
 pub mod discover;
 pub mod error;
 pub mod frame;

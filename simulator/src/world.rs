@@ -231,6 +231,11 @@ impl World {
         self.lock().fixture = fixture.to_string();
     }
 
+    /// What lies on the stage now.
+    pub fn fixture(&self) -> String {
+        self.lock().fixture.clone()
+    }
+
     pub(crate) fn cart_drive(&self, direction: f64, t: f64) {
         let mut s = self.lock();
         let speed = self.rig.cart.as_ref().map(|c| c.speed_mm_s).unwrap_or(0.0);

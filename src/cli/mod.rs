@@ -320,6 +320,7 @@ fn wire(yes: bool, reserve_mib: u64) -> (Wiring, progress::Progress) {
     } else {
         Arc::new(operator::TerminalOperator::new(ui.bar()))
     };
+    operator::answer_pauses(events.subscribe(), control.clone(), yes, ui.bar());
     let abort = control.clone();
     tokio::spawn(async move {
         if tokio::signal::ctrl_c().await.is_ok() {

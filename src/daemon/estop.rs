@@ -1,6 +1,7 @@
 //! The emergency stop. `POST /api/estop` latches first (every motion and emission is refused
 //! from then on), aborts any run, and puts every device in its safe state concurrently (laser
-//! disarmed, every switched output off, every axis stopped); it never waits for a run or for
+//! disarmed, every switched output off, every axis stopped and marked for re-homing, since a
+//! stepper stopped abruptly may have lost steps); it never waits for a run or for
 //! the manual-command lock, so it finishes within one device round trip. Motion and emission
 //! stay refused until `POST /api/estop/reset`.
 
@@ -11,6 +12,7 @@ use serde::Serialize;
 use tokio::sync::watch;
 use utoipa::ToSchema;
 
+use super::device_state::{self, DevicesState};
 use super::state::AppState;
 
 /// How long the follow-up sweep waits for an aborted run to wind down before it puts the rig
@@ -65,6 +67,9 @@ pub struct EStopReport {
     pub aborted_run: Option<String>,
     /// Devices that failed to reach their safe state (each message names the device).
     pub errors: Vec<String>,
+    /// Every device as it is after the e-stop (switch banks read back from the hardware,
+    /// axes marked for re-homing); `null` for a reset.
+    pub devices: Option<DevicesState>,
 }
 
 /// Triggers the e-stop: latch, abort the run, then laser disarm, every bank off and every axis
@@ -77,6 +82,13 @@ pub async fn trigger(app: &AppState) -> EStopReport {
     app.runs.abort();
     let errors = safe_state(app).await;
     let elapsed = t0.elapsed().as_secs_f64();
+    // The banks' states as the hardware reports them, so the snapshot below cannot show a
+    // lamp on that the board switched off (or off that it kept on).
+    for e in join_all(app.rig.banks.values().map(|b| b.read())).await {
+        if let Err(e) = e {
+            tracing::error!("e-stop: reading a switch bank back: {e}");
+        }
+    }
     metrics::histogram!("stagehand_estop_seconds").record(elapsed);
     metrics::counter!("stagehand_estops_total").increment(1);
     for e in &errors {
@@ -87,6 +99,7 @@ pub async fn trigger(app: &AppState) -> EStopReport {
         elapsed_ms: elapsed * 1e3,
         aborted_run,
         errors,
+        devices: Some(device_state::snapshot(&app.rig)),
     };
     tracing::warn!(
         "E-STOP: latched; devices safe in {:.1} ms ({} errors)",
@@ -109,6 +122,7 @@ pub fn reset(app: &AppState) -> EStopReport {
         elapsed_ms: 0.0,
         aborted_run: None,
         errors: Vec::new(),
+        devices: None,
     };
     app.hub.publish("estop", &report);
     report
@@ -125,7 +139,7 @@ async fn safe_state(app: &AppState) -> Vec<String> {
         }
     };
     let banks = join_all(rig.banks.values().map(|b| b.all_off()));
-    let axes = join_all(rig.axes.values().map(|a| a.stop()));
+    let axes = join_all(rig.axes.values().map(|a| a.emergency_stop()));
     let (laser, banks, axes) = tokio::join!(laser, banks, axes);
     laser
         .into_iter()

@@ -55,6 +55,8 @@ pub struct RunState {
     pub progress: f64,
     /// The prompt waiting for an answer (`POST /api/runs/{id}/prompt`).
     pub prompt: Option<PromptInfo>,
+    /// Why the run paused itself (the interlock opened), and what to do before resuming.
+    pub pause_reason: Option<String>,
     /// Wall-clock Unix time when this session started.
     pub started_unix_s: f64,
 }
@@ -136,6 +138,7 @@ impl ActiveRun {
                 (p.steps_done as f64 / p.total_steps as f64).clamp(0.0, 1.0)
             },
             prompt,
+            pause_reason: self.control.pause_reason(),
             started_unix_s: self.started_unix_s,
         }
     }

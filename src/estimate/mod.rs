@@ -148,11 +148,16 @@ pub struct RigState {
 }
 
 impl RigState {
-    /// The power-on state: axes at 0°, lamps off, laser disarmed and off with the rig's fitted
+    /// The state a run starts from once every axis is homed: axes at their home angle
+    /// (`home_deg`, default 0°), lamps off, laser disarmed and off with the rig's fitted
     /// colour and mount elevation, cart at 0 mm, the rig's sample on the stage.
     pub fn power_on(rig: &RigSpec) -> Self {
         Self {
-            axes_deg: rig.axes.iter().map(|a| (a.id.clone(), 0.0)).collect(),
+            axes_deg: rig
+                .axes
+                .iter()
+                .map(|a| (a.id.clone(), a.home_deg))
+                .collect(),
             lamps_on: BTreeSet::new(),
             laser_armed: false,
             laser_on: false,
@@ -170,8 +175,9 @@ impl RigState {
         match action {
             Action::Home { axes } => {
                 for id in axes {
-                    if rig.axis(id).is_some() {
-                        self.axes_deg.insert(id.clone(), 0.0);
+                    if let Some(axis) = rig.axis(id) {
+                        // Where homing leaves it: next to the switch (`home_deg`, default 0°).
+                        self.axes_deg.insert(id.clone(), axis.home_deg);
                     }
                 }
             }

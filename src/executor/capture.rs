@@ -80,8 +80,15 @@ pub(super) async fn capture(
     live.last_capture_s = Some(rig.clock.now_s());
 
     let mut out = StepFrames::default();
-    // A frame is only worth keeping if the lamps were as planned throughout its exposure.
-    verify_lamps(ex, live).await?;
+    // A frame is only worth keeping if the rig was as planned throughout its exposure: checked
+    // before, after, and for the laser (which the interlock can switch off at any moment)
+    // throughout.
+    verify_state(ex, live).await?;
+    let mut laser_watch = rig.laser.as_ref().map(|l| {
+        let mut w = l.watch();
+        w.mark_unchanged();
+        w
+    });
     try_all(handles.iter().map(|c| c.set_armed(true))).await?;
     let result = async {
         for (e, &exposure) in exposures_s.iter().enumerate() {
@@ -102,7 +109,14 @@ pub(super) async fn capture(
     let disarmed = try_all(handles.iter().map(|c| c.set_armed(false))).await;
     result?;
     disarmed?;
-    verify_lamps(ex, live).await?;
+    if let Some(w) = laser_watch.as_mut()
+        && w.has_changed().unwrap_or(false)
+        && live.state.laser_on
+    {
+        let closed = w.borrow_and_update().interlock_closed;
+        return Err(laser_changed(ex, closed).into());
+    }
+    verify_state(ex, live).await?;
 
     if *hdr && exposures_s.len() > 1 {
         for cam in cameras {
@@ -127,6 +141,103 @@ pub(super) async fn capture(
         }
     }
     Ok(out)
+}
+
+/// The laser's state changed while the cameras exposed with it planned on: an interlock that
+/// opened (the run pauses) or a controller that switched it off (the step is retaken).
+fn laser_changed(ex: &Execution, interlock_closed: bool) -> DeviceError {
+    let device = ex
+        .rig
+        .laser
+        .as_ref()
+        .map(|l| l.id().to_string())
+        .unwrap_or_else(|| "laser".into());
+    if interlock_closed {
+        DeviceError::StateLost {
+            device,
+            message: "the laser's state changed while the cameras exposed".into(),
+        }
+    } else {
+        DeviceError::InterlockOpen { device }
+    }
+}
+
+/// Checks that the rig is in the state the plan has at this point: the laser armed, emitting
+/// and fitted as planned (an open interlock is reported as such, so the run pauses), every
+/// axis homed, still and at its target, the planned fixture on the stage, and every lamp as
+/// planned. A frame taken in any other state would record something the plan did not ask for.
+async fn verify_state(ex: &Execution, live: &Live) -> Result<(), DeviceError> {
+    let rig = &ex.rig;
+    let want = &live.state;
+    if let Some(l) = &rig.laser {
+        let s = l.status();
+        let lost = |message: String| DeviceError::StateLost {
+            device: l.id().to_string(),
+            message,
+        };
+        if want.laser_on && !s.on && !rig.interlock.is_closed() {
+            return Err(DeviceError::InterlockOpen {
+                device: l.id().to_string(),
+            });
+        }
+        if s.on != want.laser_on || s.armed != want.laser_armed {
+            return Err(lost(format!(
+                "the laser is {} and {} but should be {} and {}",
+                if s.armed { "armed" } else { "disarmed" },
+                if s.on { "on" } else { "off" },
+                if want.laser_armed {
+                    "armed"
+                } else {
+                    "disarmed"
+                },
+                if want.laser_on { "on" } else { "off" },
+            )));
+        }
+        if s.fitted_nm != want.laser_fitted_nm {
+            return Err(lost(format!(
+                "the fitted laser is {} nm but the plan has {} nm",
+                s.fitted_nm, want.laser_fitted_nm
+            )));
+        }
+    }
+    for (id, target) in &want.axes_deg {
+        let Some(axis) = rig.axes.get(id) else {
+            continue;
+        };
+        let s = axis.status();
+        let tolerance = 2.0 / axis.spec().steps_per_deg.max(1.0);
+        let problem = if !s.homed {
+            Some("is not homed (its position is unknown)".to_string())
+        } else if s.moving {
+            Some("is moving".to_string())
+        } else if (s.position_deg - target).abs() > tolerance {
+            Some(format!(
+                "is at {:.4}° but should be at {target:.4}°",
+                s.position_deg
+            ))
+        } else {
+            None
+        };
+        if let Some(problem) = problem {
+            return Err(DeviceError::StateLost {
+                device: id.clone(),
+                message: format!("the axis {problem}"),
+            });
+        }
+    }
+    if let Some(w) = &rig.world {
+        let on_stage = w.fixture();
+        if on_stage != want.fixture {
+            return Err(DeviceError::StateLost {
+                device: "stage".into(),
+                message: format!(
+                    "`{on_stage}` is on the stage but the plan has `{}`",
+                    want.fixture
+                ),
+            });
+        }
+    }
+    verify_lamps(ex, live).await
 }
 
 /// Reads every switch bank back and checks that each lamp is on exactly when the plan has it

@@ -2,6 +2,7 @@
 
 use std::future::Future;
 use std::pin::Pin;
+use std::sync::{Arc, Mutex};
 
 use tokio::sync::{broadcast, watch};
 
@@ -21,6 +22,8 @@ pub enum Control {
 #[derive(Clone)]
 pub struct RunControl {
     tx: watch::Sender<Control>,
+    /// Why the run paused itself (an interlock that opened), until it is resumed.
+    reason: Arc<Mutex<Option<String>>>,
 }
 
 impl Default for RunControl {
@@ -33,6 +36,7 @@ impl RunControl {
     pub fn new() -> Self {
         Self {
             tx: watch::channel(Control::Run).0,
+            reason: Arc::default(),
         }
     }
 
@@ -40,7 +44,25 @@ impl RunControl {
         self.set(Control::Pause);
     }
 
+    /// Pauses for a reason the operator must act on (shown with the run's state).
+    pub fn pause_because(&self, reason: String) {
+        *self.reason.lock().unwrap_or_else(|p| p.into_inner()) = Some(reason);
+        self.set(Control::Pause);
+    }
+
+    /// Why the run paused itself, while it is paused.
+    pub fn pause_reason(&self) -> Option<String> {
+        if self.current() != Control::Pause {
+            return None;
+        }
+        self.reason
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
+    }
+
     pub fn resume(&self) {
+        *self.reason.lock().unwrap_or_else(|p| p.into_inner()) = None;
         self.set(Control::Run);
     }
 

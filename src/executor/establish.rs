@@ -21,13 +21,13 @@ pub(super) async fn establish(
     let moves: Vec<_> = state
         .axes_deg
         .iter()
-        .filter(|(_, deg)| **deg != 0.0)
         .map(|(id, deg)| {
             rig.axes
                 .get(id)
                 .map(|h| (h, *deg))
                 .ok_or_else(|| missing(id, "no such axis in this rig"))
         })
+        .filter(|m| !matches!(m, Ok((h, deg)) if *deg == h.spec().home_deg))
         .collect::<Result<_, _>>()?;
     try_all(moves.iter().map(|(h, deg)| h.move_to(*deg))).await?;
     if let Some(w) = &rig.world {
@@ -53,6 +53,57 @@ pub(super) async fn establish(
     live.state = state.clone();
     live.state.lamps_on.clear();
     switch_lamps(rig, live, &lamps).await
+}
+
+/// Takes the rig's state as it is for an in-place capture: every axis must be homed and still;
+/// lamps (read back from their banks), laser, cart and fixture are recorded as found. Lamps
+/// found on are treated as just switched on, so the capture waits their warm-up: their switch
+/// time is not known.
+pub(super) async fn adopt(rig: &Rig, live: &mut Live) -> Result<(), DeviceError> {
+    let mut state = live.state.clone();
+    for (id, axis) in &rig.axes {
+        let s = axis.status();
+        if !s.homed {
+            return Err(DeviceError::NotHomed { device: id.clone() });
+        }
+        if s.moving {
+            return Err(missing(
+                id,
+                "the axis is moving; wait for it to stop before capturing",
+            ));
+        }
+        state.axes_deg.insert(id.clone(), s.position_deg);
+    }
+    state.lamps_on.clear();
+    for (bank_id, bank) in &rig.banks {
+        let states = bank.read().await?;
+        for (id, wiring) in rig.lamps.iter().filter(|(_, w)| &w.bank == bank_id) {
+            if states
+                .get(wiring.channel.saturating_sub(1) as usize)
+                .copied()
+                .unwrap_or(false)
+            {
+                state.lamps_on.insert(id.clone());
+            }
+        }
+    }
+    if let Some(l) = &rig.laser {
+        let s = l.status();
+        state.laser_armed = s.armed;
+        state.laser_on = s.on;
+        state.laser_fitted_nm = s.fitted_nm;
+        state.laser_mount_deg = s.mount_elevation_deg;
+    }
+    if let Some(c) = &rig.cart {
+        state.cart_mm = c.position_mm();
+    }
+    if let Some(w) = &rig.world {
+        state.fixture = w.fixture();
+    }
+    let now = rig.clock.now_s();
+    live.lamp_on_since = state.lamps_on.iter().map(|id| (id.clone(), now)).collect();
+    live.state = state;
+    Ok(())
 }
 
 /// Switches lamps by id (grouped per bank) and records switch-on times for the warm-up wait.

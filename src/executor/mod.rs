@@ -23,6 +23,7 @@ use stagehand_devices::DeviceError;
 use tokio::sync::broadcast;
 
 pub use control::{Answer, AutoConfirm, Control, Operator, RunControl};
+
 pub use events::Event;
 pub use telemetry::describe_metrics;
 pub use writer::WriterHandle;
@@ -70,6 +71,18 @@ pub struct Summary {
     pub safety_violations: Vec<String>,
 }
 
+/// How a run brings the rig into the state of its first step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Start {
+    /// Home every axis and set up the state the plan has before its first pending step
+    /// (runs and resumes); the rig ends in its safe state.
+    #[default]
+    Establish,
+    /// Take the rig as it is (a single capture): every axis must be homed; nothing is homed,
+    /// moved or switched first, and a run that completes leaves the rig as it was.
+    InPlace,
+}
+
 /// Everything a run needs.
 pub struct Execution {
     pub rig: Rig,
@@ -81,6 +94,7 @@ pub struct Execution {
     pub writer: WriterHandle,
     /// Steps already durable (non-empty when resuming).
     pub done: BTreeSet<usize>,
+    pub start: Start,
 }
 
 /// State the executor tracks while it runs (for metadata, warm-up and pacing).
@@ -123,7 +137,13 @@ impl Execution {
             estimated_rig_time_s: est.rig_time_s,
         });
         let result = self.run_steps(first, &start_state, &est).await;
-        let safe = self.rig.safe_state().await;
+        // An in-place capture that completed leaves the rig as the operator set it up; every
+        // other ending (and every ordinary run) goes to the safe state.
+        let safe = if self.start == Start::InPlace && result.is_ok() {
+            Ok(())
+        } else {
+            self.rig.safe_state().await
+        };
         let (status, message) = match (&result, &safe) {
             (Ok(()), Ok(())) => (RunStatus::Done, None),
             (Ok(()), Err(e)) => (
@@ -194,18 +214,20 @@ impl Execution {
             .get(first)
             .map(|s| (s.index, s.at))
             .unwrap_or((first, SourcePos::default()));
-        establish::establish(&self.rig, &mut live, start_state)
-            .await
-            .map_err(|source| {
-                telemetry::device_error(&source);
-                RunError::Device {
-                    script: self.script_name.clone(),
-                    step: establish_at.0,
-                    kind: "establish",
-                    at: establish_at.1,
-                    source: Box::new(source),
-                }
-            })?;
+        let established = match self.start {
+            Start::Establish => establish::establish(&self.rig, &mut live, start_state).await,
+            Start::InPlace => establish::adopt(&self.rig, &mut live).await,
+        };
+        established.map_err(|source| {
+            telemetry::device_error(&source);
+            RunError::Device {
+                script: self.script_name.clone(),
+                step: establish_at.0,
+                kind: "establish",
+                at: establish_at.1,
+                source: Box::new(source),
+            }
+        })?;
         let rig_t0 = self.rig.clock.now_s();
         let est_t0 = if first == 0 {
             0.0
@@ -294,6 +316,10 @@ impl Execution {
             if let Err(StepFailure::Device(e)) = &outcome {
                 telemetry::device_error(e);
             }
+            if let Err(StepFailure::Device(e @ DeviceError::InterlockOpen { .. })) = &outcome {
+                self.hold_for_interlock(step, live, &before, e).await?;
+                continue;
+            }
             let error = match outcome {
                 Err(StepFailure::Device(e)) if e.is_recoverable() && faults < MAX_STEP_FAULTS => e,
                 other => return other,
@@ -315,6 +341,40 @@ impl Execution {
                 step: step.index,
                 device: error.device().to_string(),
             });
+        }
+    }
+
+    /// The interlock opened during `step` (the laser went dark, or could not switch on): the
+    /// step's frames are dropped, the run pauses with a warning until the operator resumes
+    /// it, and the rig is then brought back to the state before the step so it is retaken
+    /// whole. An interlock still open at the resume pauses again.
+    async fn hold_for_interlock(
+        &self,
+        step: &crate::plan::Step,
+        live: &mut Live,
+        before: &RigState,
+        error: &DeviceError,
+    ) -> Result<(), StepFailure> {
+        let mut error = error.clone();
+        loop {
+            let reason = format!(
+                "step {}: {error}. The run is paused and the step's frames were discarded; close the enclosure door, then resume the run to retake the step",
+                step.index
+            );
+            tracing::warn!("{reason}");
+            self.control.pause_because(reason.clone());
+            self.emit(Event::Warning { message: reason });
+            if !self.control.wait_to_proceed(step.index, &self.events).await {
+                return Err(StepFailure::Aborted);
+            }
+            let recovered = tokio::select! {
+                r = self.recover(live, before, &error) => r,
+                () = self.control.aborted() => return Err(StepFailure::Aborted),
+            };
+            match recovered {
+                Err(StepFailure::Device(e @ DeviceError::InterlockOpen { .. })) => error = e,
+                other => return other,
+            }
         }
     }
 
@@ -362,8 +422,8 @@ impl Execution {
                     .map(|id| axis(rig, id))
                     .collect::<Result<Vec<_>, _>>()?;
                 try_all(handles.iter().map(|h| h.home())).await?;
-                for id in axes {
-                    live.state.axes_deg.insert(id.clone(), 0.0);
+                for (id, h) in axes.iter().zip(&handles) {
+                    live.state.axes_deg.insert(id.clone(), h.spec().home_deg);
                 }
             }
             Action::Move { targets } => {

@@ -45,6 +45,8 @@ pub(super) fn device_error(e: &DeviceError) {
         DeviceError::UnexpectedFrame { .. } => Some("unexpected"),
         // The camera task did not answer the frame request in time (exposure + readout).
         DeviceError::Timeout { request, .. } if request == "frame" => Some("timeout"),
+        // A simulated camera's frame that never came (a stall injected into the simulation).
+        DeviceError::SimulatedFault { request, .. } if request == "frame" => Some("missing"),
         _ => None,
     };
     if let Some(reason) = dropped {

@@ -5,6 +5,7 @@ use std::sync::Arc;
 
 use stagehand_devices::DeviceError;
 use stagehand_devices::camera::CameraDriver;
+use stagehand_devices::compute_time::ComputeTime;
 use stagehand_devices::error::DeviceResult;
 use stagehand_devices::frame::Frame;
 use stagehand_devices::ground_truth::GroundTruthData;
@@ -26,6 +27,8 @@ pub struct SimCamera {
     /// The last ground truth rendered and the scene it shows (rig time zeroed): the exposures
     /// of a bracket see the same scene, so they share one.
     ground_truth: Option<(WorldSnapshot, Arc<GroundTruthData>)>,
+    /// Rendering time, which the camera's frame timeouts do not count.
+    compute: ComputeTime,
 }
 
 impl SimCamera {
@@ -38,6 +41,7 @@ impl SimCamera {
             armed: None,
             expected: None,
             ground_truth: None,
+            compute: ComputeTime::default(),
         }
     }
 
@@ -107,6 +111,10 @@ impl CameraDriver for SimCamera {
         Ok(())
     }
 
+    fn compute_time(&self) -> Option<ComputeTime> {
+        Some(self.compute.clone())
+    }
+
     async fn expect(&mut self, trigger_id: u64, _exposure_s: f64) -> DeviceResult<()> {
         self.expected = Some(trigger_id);
         Ok(())
@@ -147,22 +155,25 @@ impl CameraDriver for SimCamera {
         self.world.begin_exposure(start, end);
         clock.sleep_s(end - clock.now_s()).await;
         let snapshot = self.world.snapshot_at(start);
+        let compute = self.compute.clone();
         let (rendered, ground_truth) = off_the_async_workers(|| {
-            let rendered = self
-                .world
-                .renderer()
-                .render(
-                    &snapshot,
-                    &id,
-                    self.exposure_s,
-                    self.gain,
-                    self.noise_seed(trigger_id),
-                )
-                .map_err(|e| DeviceError::Other {
-                    device: id.clone(),
-                    message: e.to_string(),
-                })?;
-            Ok::<_, DeviceError>((rendered, self.ground_truth(&snapshot)?))
+            compute.measure(|| {
+                let rendered = self
+                    .world
+                    .renderer()
+                    .render(
+                        &snapshot,
+                        &id,
+                        self.exposure_s,
+                        self.gain,
+                        self.noise_seed(trigger_id),
+                    )
+                    .map_err(|e| DeviceError::Other {
+                        device: id.clone(),
+                        message: e.to_string(),
+                    })?;
+                Ok::<_, DeviceError>((rendered, self.ground_truth(&snapshot)?))
+            })
         })?;
         clock
             .sleep_s(end + self.spec.readout_s() - clock.now_s())
