@@ -85,8 +85,7 @@ impl WriterHandle {
     /// (or `QUEUE_STEPS` steps) behind.
     pub async fn submit(&self, record: StepRecord, frames: StepFrames) -> Result<(), RunError> {
         let step = record.step;
-        let bytes: usize = frames.frames.iter().map(|(_, f)| f.pixels.len() * 2).sum();
-        let mib = (bytes >> 20).min(BUDGET_MIB as usize) as u32;
+        let mib = step_bytes(&frames).div_ceil(1 << 20).min(BUDGET_MIB as usize) as u32;
         let stopped = || RunError::Storage {
             step,
             message: "the writer thread has stopped".into(),
@@ -128,6 +127,34 @@ impl WriterHandle {
         self.check()?;
         Ok(report)
     }
+}
+
+/// Memory a step's frames hold until they are on disk: the raw pixels, the float HDR merges
+/// still to make, and the ground truth planes (counted once per image, however many frames
+/// share it).
+fn step_bytes(frames: &StepFrames) -> usize {
+    let raw: usize = frames
+        .frames
+        .iter()
+        .map(|(_, f)| f.pixels.len() * std::mem::size_of::<u16>())
+        .sum();
+    let hdr: usize = frames
+        .hdr
+        .iter()
+        .filter_map(|(_, idx, _)| idx.first())
+        .filter_map(|&i| frames.frames.get(i))
+        .map(|(_, f)| f.pixels.len() * std::mem::size_of::<f32>())
+        .sum();
+    let mut seen = std::collections::BTreeSet::new();
+    let truth: usize = frames
+        .frames
+        .iter()
+        .filter_map(|(_, f)| f.ground_truth.as_ref())
+        .filter(|g| seen.insert(Arc::as_ptr(g)))
+        .flat_map(|g| g.planes.iter())
+        .map(|p| p.samples.len() * std::mem::size_of::<f32>())
+        .sum();
+    raw + hdr + truth
 }
 
 fn writer_loop(
