@@ -203,10 +203,10 @@ impl Library {
         }
         match std::fs::remove_file(self.upload_path(&stem)) {
             Ok(()) => Ok(()),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-                Err(ApiError::not_found(format!("no uploaded script named {stem:?}"))
-                    .hint("`GET /api/scripts` lists the scripts"))
-            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(ApiError::not_found(
+                format!("no uploaded script named {stem:?}"),
+            )
+            .hint("`GET /api/scripts` lists the scripts")),
             Err(e) => Err(ApiError::internal(format!("cannot delete {stem}: {e}"))),
         }
     }
