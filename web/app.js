@@ -36,6 +36,8 @@ const S = {
   started: false,
   sseWasOpen: false,
   lastEventUnix: 0,
+  runEnds: new Map(), // run id → Unix time of its run_finished event seen by this page
+  lastFrameAt: new Map(), // run id → capture time of its last frame (null while looked up)
 };
 
 const $ = (id) => document.getElementById(id);
@@ -939,8 +941,10 @@ function fmtDateTime(unix_s) {
 }
 
 /**
- * How long a run took: the listing's wall-clock duration (or start and end) when the daemon
- * gives one, else the rig time of its durable steps (labelled so).
+ * How long a run took: the listing's duration or end time when the daemon gives them; else
+ * the end this page saw (its run_finished event); else, approximately, from the start to its
+ * last frame (looked up once per run, see runEndFromFrames). The stored `rig_time_s` is the
+ * rig's clock, not a duration, so it is not used.
  */
 function runDuration(r) {
   const num = (...keys) => keys.map((k) => r[k]).find((v) => Number.isFinite(v));
@@ -951,11 +955,34 @@ function runDuration(r) {
   if (start !== undefined && end !== undefined && end >= start) {
     return { text: fmtDuration(end - start), title: `${fmtDateTime(start)} → ${fmtDateTime(end)}` };
   }
-  if (r.active && S.run && S.run.run_id === r.run_id && Number.isFinite(S.run.started_unix_s)) {
-    return { text: `${fmtDuration(Date.now() / 1000 - S.run.started_unix_s)} so far`, title: 'running' };
+  if (r.active) {
+    const since = S.run && S.run.run_id === r.run_id && Number.isFinite(S.run.started_unix_s) ? S.run.started_unix_s : start;
+    return { text: since ? `${fmtDuration(Date.now() / 1000 - since)} so far` : 'running', title: 'running now' };
   }
-  if (Number.isFinite(r.rig_time_s) && r.rig_time_s > 0) return { text: `${fmtDuration(r.rig_time_s)} rig time`, title: 'rig time of the steps on disk (this daemon does not report wall-clock durations)' };
-  return { text: '–', title: '' };
+  const seen = S.runEnds.get(r.run_id);
+  if (start !== undefined && Number.isFinite(seen) && seen >= start) {
+    return { text: fmtDuration(seen - start), title: `${fmtDateTime(start)} → ${fmtDateTime(seen)}` };
+  }
+  const last = S.lastFrameAt.get(r.run_id);
+  if (start !== undefined && Number.isFinite(last) && last >= start) {
+    return { text: `≈ ${fmtDuration(last - start)}`, title: `from the start to the last frame (${fmtDateTime(last)}); the daemon does not list when runs end` };
+  }
+  if (last === undefined && r.frames > 0) runEndFromFrames(r);
+  return { text: '–', title: r.frames ? 'looking up the last frame…' : 'no frames: the daemon does not list when runs end' };
+}
+
+/** Looks up when a run's last frame was captured (once per run; the history redraws). */
+async function runEndFromFrames(r) {
+  S.lastFrameAt.set(r.run_id, null);
+  try {
+    const page = await api('GET', `/api/runs/${encodeURIComponent(r.run_id)}/frames?limit=1&offset=${Math.max(0, r.frames - 1)}`);
+    const f = page && page.frames && page.frames[0];
+    S.lastFrameAt.set(r.run_id, f && Number.isFinite(f.wall_time_unix_s) ? f.wall_time_unix_s : NaN);
+  } catch (_) {
+    S.lastFrameAt.set(r.run_id, NaN);
+  }
+  clearTimeout(S.historyRedraw);
+  S.historyRedraw = setTimeout(renderHistory, 50);
 }
 
 const HISTORY_SHORT = 15;
@@ -1079,8 +1106,6 @@ function onRunEvent(d) {
     S.run.total_steps = d.total_steps;
     S.run.eta_s = d.eta_s;
     if (d.total_steps) S.run.progress = Math.max(S.run.progress || 0, S.run.steps_done / d.total_steps);
-  } else if (e === 'warning') {
-    showWarning(d.message || shortJson(d), d);
   } else if (mine && e === 'paused') {
     S.run.state = 'paused';
     const why = pauseReason(d);
@@ -1245,6 +1270,13 @@ function setConn(state) {
 function onHubEvent(ev) {
   addLog(ev);
   const d = ev.data || {};
+  if (ev.kind === 'run' && d.run_id) {
+    if (d.event === 'run_finished' && Number.isFinite(ev.unix_s)) S.runEnds.set(d.run_id, ev.unix_s);
+    if (d.event === 'run_started') {
+      S.runEnds.delete(d.run_id);
+      S.lastFrameAt.delete(d.run_id);
+    }
+  }
   switch (ev.kind) {
     case 'run':
       onRunEvent(d);
@@ -1978,6 +2010,21 @@ function prepareImage(fi, d) {
     : (d.sbit && d.bitDepth === 16 ? 16 - d.sbit : 0);
   shift = Math.max(0, Math.min(15, shift | 0));
   const maxDN = 2 ** Math.min(16, bitDepth) - 1;
+  if (!shift && d.bitDepth === 16 && bitDepth < 16) {
+    // Neither metadata nor sBIT names a shift, but samples beyond the sensor's range mean
+    // MSB-aligned storage: the shift is the low bits that are zero in every sample.
+    let or = 0;
+    let top = 0;
+    for (let i = 0; i < d.data.length; i++) {
+      or |= d.data[i];
+      if (d.data[i] > top) top = d.data[i];
+    }
+    if (top > maxDN) {
+      let tz = 0;
+      while (tz < 16 - bitDepth && !(or & (1 << tz))) tz++;
+      shift = tz;
+    }
+  }
   const black = Math.max(0, Math.min(maxDN - 1, Number(metaValue(fi, meta, 'black_level_dn')) || 0));
   const dn = shift ? new Uint16Array(d.data.length) : d.data;
   if (shift) for (let i = 0; i < dn.length; i++) dn[i] = d.data[i] >> shift;

@@ -21,6 +21,7 @@ import { spawn } from 'node:child_process';
 import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
+import zlib from 'node:zlib';
 import { fileURLToPath } from 'node:url';
 import { chromium } from 'playwright-core';
 
@@ -103,6 +104,44 @@ async function apiGet(base, token, p) {
   const r = await fetch(base + p, { headers: { Authorization: `Bearer ${token}` } });
   if (!r.ok) throw new Failure(`GET ${p}: ${r.status} ${await r.text()}`);
   return r.json();
+}
+
+/** A 16-bit RGB PNG of `samples` (filter 0), with an sBIT chunk and a stagehand iTXt. */
+function png16(w, h, samples, sbit, meta) {
+  const crcTable = Array.from({ length: 256 }, (_, n) => {
+    let c = n;
+    for (let k = 0; k < 8; k++) c = c & 1 ? 0xedb88320 ^ (c >>> 1) : c >>> 1;
+    return c >>> 0;
+  });
+  const crc = (buf) => {
+    let c = 0xffffffff;
+    for (const b of buf) c = crcTable[(c ^ b) & 0xff] ^ (c >>> 8);
+    return (c ^ 0xffffffff) >>> 0;
+  };
+  const chunk = (type, data) => {
+    const len = Buffer.alloc(4);
+    len.writeUInt32BE(data.length);
+    const body = Buffer.concat([Buffer.from(type, 'latin1'), data]);
+    const c = Buffer.alloc(4);
+    c.writeUInt32BE(crc(body));
+    return Buffer.concat([len, body, c]);
+  };
+  const ihdr = Buffer.alloc(13);
+  ihdr.writeUInt32BE(w, 0);
+  ihdr.writeUInt32BE(h, 4);
+  ihdr.set([16, 2, 0, 0, 0], 8);
+  const raw = Buffer.alloc(h * (1 + w * 6));
+  for (let y = 0; y < h; y++) {
+    for (let i = 0; i < w * 3; i++) raw.writeUInt16BE(samples[y * w * 3 + i], y * (1 + w * 6) + 1 + i * 2);
+  }
+  return Buffer.concat([
+    Buffer.from([137, 80, 78, 71, 13, 10, 26, 10]),
+    chunk('IHDR', ihdr),
+    ...(sbit ? [chunk('sBIT', Buffer.from([sbit, sbit, sbit]))] : []),
+    chunk('iTXt', Buffer.concat([Buffer.from('stagehand\0\0\0\0\0', 'latin1'), Buffer.from(meta, 'utf8')])),
+    chunk('IDAT', zlib.deflateSync(raw)),
+    chunk('IEND', Buffer.alloc(0)),
+  ]);
 }
 
 let shotNo = 0;
@@ -375,6 +414,35 @@ async function main() {
     await page.locator('#viewer').waitFor({ state: 'hidden' });
   });
 
+  await stage('the viewer reads DN exactly from low-bit and MSB-aligned (sBIT) PNGs', async () => {
+    // 12-bit DN stored as they are (today) or shifted to the top bits with sBIT and/or a
+    // sample_shift in the metadata (the storage change under way): the same DN either way.
+    const w = 19;
+    const hgt = 7;
+    const dn = Array.from({ length: w * hgt * 3 }, (_, i) => (i * 977 + 13) % 4096);
+    dn[0] = 4095;
+    dn[4] = 4095;
+    const variants = [
+      { name: 'low bits', shift: 0, sbit: false, info: { bit_depth: 12 } },
+      { name: 'MSB + sBIT', shift: 4, sbit: true, info: { bit_depth: 12 } },
+      { name: 'MSB + sample_shift', shift: 4, sbit: false, info: { bit_depth: 12, sample_shift: 4 } },
+      { name: 'MSB, no hint', shift: 4, sbit: false, info: { bit_depth: 12 } },
+    ];
+    for (const v of variants) {
+      const png = png16(w, hgt, dn.map((x) => x << v.shift), v.sbit ? 12 : null, JSON.stringify({ bit_depth: 12 }));
+      const got = await page.evaluate(async ({ b64, info }) => {
+        const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+        const im = prepareImage(info, await decodePng(bytes.buffer));
+        return { dn: Array.from(im.data), sat: im.satSamples, shift: im.shift };
+      }, { b64: png.toString('base64'), info: v.info });
+      const bad = got.dn.findIndex((x, i) => x !== dn[i]);
+      if (bad >= 0) throw new Failure(`${v.name}: sample ${bad} reads as DN ${got.dn[bad]}, stored DN ${dn[bad]}`);
+      const sat = dn.filter((x) => x === 4095).length;
+      if (got.sat !== sat) throw new Failure(`${v.name}: ${got.sat} saturated samples, expected ${sat}`);
+      log(`${v.name}: DN exact, shift ${got.shift}, ${got.sat} saturated`);
+    }
+  });
+
   await stage('open an HDR frame in the viewer (tone-mapped)', async () => {
     if (!hdrFrame) throw new Failure('quickstart recorded no HDR frame');
     await page.click('#f-clear');
@@ -436,10 +504,13 @@ async function main() {
     await page.locator('#run-badge', { hasText: 'aborted' }).waitFor();
     const row = page.locator(`#runs-body tr[data-run="${run2}"]`);
     await row.locator('.run-status', { hasText: 'aborted' }).waitFor();
+    // The daemon's `warning` event about the stop shows in the banner until the run runs again.
+    await page.locator('#warning-banner', { hasText: `run ${run2} aborted` }).waitFor();
     const stopped = (await apiGet(base, op, '/api/runs')).find((r) => r.run_id === run2);
     log(`aborted at ${stopped.steps_done}/${stopped.steps_total} steps`);
     await shot(page, 'aborted');
     await row.locator('.resume-btn').click();
+    await page.locator('#warning-banner').waitFor({ state: 'hidden' });
     await page.locator('#run-badge', { hasText: 'finished' }).waitFor({ timeout: RUN_TIMEOUT_MS });
     const done = (await apiGet(base, op, '/api/runs')).find((r) => r.run_id === run2);
     if (done.status !== 'done' || done.steps_done !== done.steps_total) throw new Failure(`after resume: ${JSON.stringify(done)}`);
