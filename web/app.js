@@ -1281,6 +1281,13 @@ function onHubEvent(ev) {
     case 'run':
       onRunEvent(d);
       if (d.event === 'step_finished' || d.event === 'run_started' || d.event === 'run_finished' || d.event === 'prompt') scheduleStatus(300);
+      // The history's steps and frames of the active run, a few times a minute.
+      if (d.event === 'step_durable' && !S.runsSoon) {
+        S.runsSoon = setTimeout(() => {
+          S.runsSoon = null;
+          scheduleRuns();
+        }, 3000);
+      }
       break;
     case 'frame':
       showFrame(d);
@@ -2551,6 +2558,7 @@ function wire() {
     for (const id of ['f-camera', 'f-lamp', 'f-kind', 'f-step', 'f-block']) $(id).value = '';
     onFilterChange(0);
   });
+  $('frames-refresh').addEventListener('click', loadFrames);
   $('frames-prev').addEventListener('click', () => {
     if (!S.browse) return;
     S.browse.offset = Math.max(0, S.browse.offset - PAGE_SIZE);

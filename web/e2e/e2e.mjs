@@ -302,6 +302,12 @@ async function main() {
       if (latest.run_id !== runId) throw new Failure(`the latest frame of ${cam} is from run ${latest.run_id}, not ${runId}`);
       await page.locator(`#cameras .cam[data-camera="${cam}"][data-frame="${latest.frame_id}"]`).waitFor({ timeout: 60_000 });
     }
+    // A camera tile opens its frame in the viewer (not a download).
+    await page.locator(`#cameras .cam[data-camera="${cams[0]}"] .cam-link`).click();
+    await page.locator('#viewer-canvas[data-ev]').waitFor();
+    const title = await page.locator('#viewer-title').innerText();
+    if (!title.startsWith(cams[0])) throw new Failure(`the viewer opened from ${cams[0]}'s tile shows "${title}"`);
+    await page.click('#viewer-close');
     const sizes = await page.$$eval('#cameras img.cam-img', (imgs) => imgs.map((i) => `${i.naturalWidth}x${i.naturalHeight}`));
     log(`${n} camera thumbnails loaded: ${sizes.join(' ')}`);
     const logLines = await page.locator('#log li').count();
@@ -559,6 +565,12 @@ async function main() {
     if (left.some((x) => x.name === 'e2e_tour')) throw new Failure('the script is still listed after Delete');
     if (!(await page.locator('#editor').isHidden())) throw new Failure('the editor still shows the deleted script');
     await noErrorToasts(page, 'delete');
+    // A new script starts from a template that is ready to run on this rig.
+    await page.click('#script-new');
+    await page.locator('#editor').waitFor({ state: 'visible' });
+    await page.locator('#editor-dryrun .dryrun-head', { hasText: 'ready to run' }).waitFor();
+    await page.click('#editor-close');
+    await page.locator('#editor').waitFor({ state: 'hidden' });
   });
 
   await stage('jog an axis', async () => {
