@@ -1115,6 +1115,12 @@ function onRunEvent(d) {
     }
   } else if (mine && e === 'resumed') {
     S.run.state = 'running';
+    delete S.run.reason;
+    if (S.warningRun === d.run_id && /paused/.test(S.warningText || '')) {
+      $('warning-banner').hidden = true;
+      S.warningText = null;
+      S.warningDismissed = null;
+    }
   } else if (e === 'run_finished') {
     const r = (S.run && S.run.run_id === d.run_id ? S.run : null) || (S.lastRun && S.lastRun.run_id === d.run_id ? S.lastRun : { run_id: d.run_id });
     S.lastRun = { ...r, finished: { status: d.status, message: d.message } };

@@ -486,11 +486,16 @@ async function main() {
   });
 
   let run2 = null;
-  await stage('parameters typed just before Start need one click', async () => {
+  await stage('a parameter fixed just before Start needs one click', async () => {
     await page.selectOption('#script-select', 'quickstart');
     await page.locator('#dryrun .dryrun-head').waitFor();
+    // A mistake in the parameters is shown as it is typed and keeps Start off...
+    await page.fill('#script-set', 'lamp_count=1 sweep_lines');
+    await page.locator('#dryrun .error-text', { hasText: 'sweep_lines' }).waitFor();
+    if (!(await page.locator('#run-start').isDisabled())) throw new Failure('Start is enabled with a malformed parameter');
+    // ...and once fixed, one click starts the run, though its dry run is still on its way.
     await page.fill('#script-set', 'lamp_count=1 sweep_lines=2');
-    await page.click('#run-start'); // once, at once: the dry run of the new parameters is still on its way
+    await page.click('#run-start');
     await page.locator('#prompt-banner').waitFor({ state: 'visible' });
     run2 = (await status()).run.run_id;
     const detail = await apiGet(base, op, `/api/runs/${run2}`);
