@@ -1246,7 +1246,9 @@ function startEvents() {
       showError(e, 'Reading a resync event');
     }
   });
-  for (const kind of ['device', 'run', 'frame', 'prompt', 'warning', 'estop']) {
+  // Named events the page knows; `interlock` and unnamed messages are taken too (a newer daemon
+  // may send them), logged, and shown in the banner when they say they are warnings.
+  for (const kind of ['device', 'run', 'frame', 'prompt', 'warning', 'estop', 'interlock', 'message']) {
     es.addEventListener(kind, (m) => {
       let ev;
       try {
@@ -1316,8 +1318,13 @@ function onHubEvent(ev) {
       showWarning(d.message || shortJson(d), d);
       break;
     default:
+      if (ev.kind === 'interlock') refreshInterlock();
       break;
   }
+  // Any other event that says it is a warning (a run's own `warning` events come as a
+  // `warning` event too, shown above).
+  const saysWarning = d.type === 'warning' || d.level === 'warning' || d.severity === 'warning';
+  if (saysWarning && ev.kind !== 'warning' && !(ev.kind === 'run' && d.event === 'warning')) showWarning(d.message || shortJson(d), d);
 }
 
 /** Applies what a `device` event says when its shape is recognisable (axis, lamp, laser). */
@@ -1949,7 +1956,7 @@ async function loadViewerImage(fi) {
     const status = $('viewer-status');
     status.className = 'error-text';
     status.textContent = `Cannot show frame ${fi.frame_id} of run ${fi.run_id}: ${e.message}. `
-      + 'Download it below, or check the run with `stagehand verify`.';
+      + 'Try the download links on the right; if they fail too, the file is damaged or missing on the daemon\'s disk.';
     return;
   }
   if (my !== V.seq) return;
