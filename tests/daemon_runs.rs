@@ -576,3 +576,42 @@ async fn quickstart_runs_to_the_end_and_broken_runs_are_listed() {
     );
     d.shutdown().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn scripts_delete_uploaded_only() {
+    let (d, _dir) = daemon().await;
+    let api = Api::new(&d, &d.state.tokens.operator);
+    let reader = Api::new(&d, &d.state.tokens.read_only);
+    common::blocking(move || {
+        let delete = |who: &Api, name: &str| {
+            Api::answer(
+                who.agent
+                    .delete(format!("{}/api/scripts/{name}", who.base))
+                    .header("Authorization", who.auth())
+                    .call(),
+            )
+        };
+        let (status, dry) = api.put("/api/scripts/tour", TOUR.as_bytes());
+        assert_eq!(status, 200, "{dry}");
+        // Read-only tokens cannot delete; built-in scripts cannot be deleted.
+        assert_eq!(delete(&reader, "tour").0, 403);
+        let (status, v) = delete(&api, "quickstart");
+        assert_eq!(status, 409, "{v}");
+        let (status, v) = delete(&api, "tour.rhai");
+        assert_eq!(status, 204, "{v}");
+        let (_, list) = api.get("/api/scripts");
+        assert!(
+            !list
+                .as_array()
+                .expect("a list")
+                .iter()
+                .any(|s| s["name"] == "tour"),
+            "{list}"
+        );
+        let (status, v) = delete(&api, "tour");
+        assert_eq!(status, 404, "{v}");
+        let (status, v) = delete(&api, "..%2Fetc");
+        assert_eq!(status, 400, "{v}");
+    })
+    .await;
+}

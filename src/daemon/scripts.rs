@@ -191,6 +191,27 @@ impl Library {
     }
 }
 
+impl Library {
+    /// Deletes an uploaded script: 404 if there is none, 409 for a built-in one.
+    pub fn remove(&self, name: &str) -> Result<(), ApiError> {
+        let stem = script_stem(name)?;
+        if self.builtin_path(&stem).is_some() {
+            return Err(ApiError::conflict(format!(
+                "{stem} is a built-in script and cannot be deleted"
+            ))
+            .hint("only uploaded scripts can be deleted"));
+        }
+        match std::fs::remove_file(self.upload_path(&stem)) {
+            Ok(()) => Ok(()),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(ApiError::not_found(
+                format!("no uploaded script named {stem:?}"),
+            )
+            .hint("`GET /api/scripts` lists the scripts")),
+            Err(e) => Err(ApiError::internal(format!("cannot delete {stem}: {e}"))),
+        }
+    }
+}
+
 /// 413 for a script over [`MAX_SCRIPT_BYTES`].
 pub fn too_large(bytes: usize) -> ApiError {
     ApiError::new(

@@ -1,10 +1,16 @@
 // End-to-end test of the dashboard in headless Debian Chromium, driven by playwright-core.
 //
 // Starts `stagehand serve` on the simulated rig (fresh data directory, port chosen by the
-// daemon), opens the dashboard with the operator token in the URL fragment, runs `quickstart`
-// from the page (answering its prompt), waits for 100 % and for every camera's thumbnail, then
-// jogs an axis, switches a lamp on, arms the laser through the confirmation dialog, presses
-// E-STOP and checks that the rig is safe; finally a read-only session sees the controls off.
+// daemon), opens the dashboard under a strict Content-Security-Policy with the operator token
+// in the URL fragment, runs `quickstart` from the page (answering its prompt), waits for 100 %
+// and for every camera's thumbnail; finds the run in the history (date, duration, status),
+// browses its frames (filters, paging, thumbnails) and opens raw and HDR frames in the viewer
+// (histogram, exposure slider, saturation count equal to the index's); takes a single capture;
+// starts a run with parameters typed just before one click on Start, pauses and aborts it and
+// resumes it from the history to the end; uploads a script, edits it with the dry run as it is
+// typed (violations with line:col), saves and deletes it; then jogs an axis, switches a lamp
+// on, arms the laser through the confirmation dialog, presses E-STOP and checks that the rig
+// is safe; finally a read-only session sees the controls off and a wrong token sees no E-STOP.
 // Screenshots of every stage go to $SCREENSHOT_DIR (default target/e2e-screenshots).
 //
 // Environment: STAGEHAND_BIN (default target/debug/stagehand), SCREENSHOT_DIR, CHROMIUM
@@ -15,6 +21,7 @@ import { spawn } from 'node:child_process';
 import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
+import zlib from 'node:zlib';
 import { fileURLToPath } from 'node:url';
 import { chromium } from 'playwright-core';
 
@@ -25,6 +32,7 @@ const SHOTS = path.resolve(process.env.SCREENSHOT_DIR || path.join(ROOT, 'target
 const CHROMIUM = process.env.CHROMIUM || '/usr/bin/chromium';
 const FULL_RIG = process.env.E2E_FULL_RIG === '1';
 const RUN_TIMEOUT_MS = 300_000;
+const CSP = "default-src 'self'; frame-ancestors 'none'; base-uri 'none'; form-action 'self'";
 const STEP_TIMEOUT_MS = 30_000;
 
 const t0 = Date.now();
@@ -98,6 +106,44 @@ async function apiGet(base, token, p) {
   return r.json();
 }
 
+/** A 16-bit RGB PNG of `samples` (filter 0), with an sBIT chunk and a stagehand iTXt. */
+function png16(w, h, samples, sbit, meta) {
+  const crcTable = Array.from({ length: 256 }, (_, n) => {
+    let c = n;
+    for (let k = 0; k < 8; k++) c = c & 1 ? 0xedb88320 ^ (c >>> 1) : c >>> 1;
+    return c >>> 0;
+  });
+  const crc = (buf) => {
+    let c = 0xffffffff;
+    for (const b of buf) c = crcTable[(c ^ b) & 0xff] ^ (c >>> 8);
+    return (c ^ 0xffffffff) >>> 0;
+  };
+  const chunk = (type, data) => {
+    const len = Buffer.alloc(4);
+    len.writeUInt32BE(data.length);
+    const body = Buffer.concat([Buffer.from(type, 'latin1'), data]);
+    const c = Buffer.alloc(4);
+    c.writeUInt32BE(crc(body));
+    return Buffer.concat([len, body, c]);
+  };
+  const ihdr = Buffer.alloc(13);
+  ihdr.writeUInt32BE(w, 0);
+  ihdr.writeUInt32BE(h, 4);
+  ihdr.set([16, 2, 0, 0, 0], 8);
+  const raw = Buffer.alloc(h * (1 + w * 6));
+  for (let y = 0; y < h; y++) {
+    for (let i = 0; i < w * 3; i++) raw.writeUInt16BE(samples[y * w * 3 + i], y * (1 + w * 6) + 1 + i * 2);
+  }
+  return Buffer.concat([
+    Buffer.from([137, 80, 78, 71, 13, 10, 26, 10]),
+    chunk('IHDR', ihdr),
+    ...(sbit ? [chunk('sBIT', Buffer.from([sbit, sbit, sbit]))] : []),
+    chunk('iTXt', Buffer.concat([Buffer.from('stagehand\0\0\0\0\0', 'latin1'), Buffer.from(meta, 'utf8')])),
+    chunk('IDAT', zlib.deflateSync(raw)),
+    chunk('IEND', Buffer.alloc(0)),
+  ]);
+}
+
 let shotNo = 0;
 async function shot(page, name) {
   shotNo += 1;
@@ -146,11 +192,29 @@ async function main() {
       '--disable-background-networking', '--disable-component-update', '--disable-sync'],
     viewport: { width: 1440, height: 1000 },
   });
+  // The dashboard must work under the strict policy the daemon is getting: no inline script,
+  // style attribute, handler or eval. The test adds the header itself (so it holds whatever the
+  // daemon sends) and fails on any violation.
+  await browser.route((u) => u.pathname === '/' && u.origin === base, async (route) => {
+    const res = await route.fetch();
+    await route.fulfill({ response: res, headers: { ...res.headers(), 'content-security-policy': CSP } });
+  });
+  await browser.addInitScript(() => {
+    document.addEventListener('securitypolicyviolation', (e) => {
+      console.error(`CSP violation: ${e.violatedDirective} blocked ${e.blockedURI || 'inline'} at ${e.sourceFile || '?'}:${e.lineNumber}`);
+    });
+  });
   const page = browser.pages()[0] || (await browser.newPage());
   page.setDefaultTimeout(STEP_TIMEOUT_MS);
   page.on('pageerror', (e) => pageErrors.push(e.message));
   page.on('console', (m) => {
+    if (/CSP violation|Content Security Policy/.test(m.text())) pageErrors.push(m.text());
     if (m.type() === 'error' && !/status of 404/.test(m.text())) log(`browser console: ${m.text()}`);
+  });
+  // confirm() before aborting a run or deleting a script: the operator says yes.
+  page.on('dialog', (d) => {
+    log(`confirm: ${d.message()}`);
+    d.accept();
   });
   const op = tokens.operator;
   const status = () => apiGet(base, op, '/api/status');
@@ -162,6 +226,7 @@ async function main() {
     if (page.url().includes(op)) throw new Failure(`the token is still in the address bar: ${page.url()}`);
     await page.locator('#axes .axis').first().waitFor();
     await page.locator('#cameras .cam').first().waitFor();
+    await page.locator('#estop').waitFor({ state: 'visible' });
     await noErrorToasts(page, 'load');
     await shot(page, 'loaded');
   });
@@ -237,12 +302,280 @@ async function main() {
       if (latest.run_id !== runId) throw new Failure(`the latest frame of ${cam} is from run ${latest.run_id}, not ${runId}`);
       await page.locator(`#cameras .cam[data-camera="${cam}"][data-frame="${latest.frame_id}"]`).waitFor({ timeout: 60_000 });
     }
+    // A camera tile opens its frame in the viewer (not a download).
+    await page.locator(`#cameras .cam[data-camera="${cams[0]}"] .cam-link`).click();
+    await page.locator('#viewer-canvas[data-ev]').waitFor();
+    const title = await page.locator('#viewer-title').innerText();
+    if (!title.startsWith(cams[0])) throw new Failure(`the viewer opened from ${cams[0]}'s tile shows "${title}"`);
+    await page.click('#viewer-close');
     const sizes = await page.$$eval('#cameras img.cam-img', (imgs) => imgs.map((i) => `${i.naturalWidth}x${i.naturalHeight}`));
     log(`${n} camera thumbnails loaded: ${sizes.join(' ')}`);
     const logLines = await page.locator('#log li').count();
     if (logLines < 10) throw new Failure(`the event log has only ${logLines} lines after a run`);
     await page.locator('#log li', { hasText: `run ${runId} finished` }).first().waitFor();
     await shot(page, 'finished');
+  });
+
+  await stage('the history lists the run with its date, duration and status', async () => {
+    const row = page.locator(`#runs-body tr[data-run="${runId}"]`);
+    await row.waitFor();
+    await row.locator('.run-status', { hasText: 'done' }).waitFor();
+    const cells = await row.locator('td').allInnerTexts();
+    log(`history row: ${cells.join(' | ')}`);
+    if (!/\d{4}-\d\d-\d\d \d\d:\d\d:\d\d/.test(cells[2])) throw new Failure(`no start date in the history row: "${cells[2]}"`);
+    if (!/\d/.test(cells[3])) throw new Failure(`no duration in the history row: "${cells[3]}"`);
+    if (await row.locator('.resume-btn').count()) throw new Failure('a finished run offers Resume');
+  });
+
+  let rawFrame = null;
+  let hdrFrame = null;
+  await stage('browse the frames of the run: filters, paging, thumbnails', async () => {
+    const all = await apiGet(base, op, `/api/runs/${runId}/frames?limit=1000`);
+    rawFrame = all.frames.find((f) => f.kind === 'raw' && f.saturated_samples > 0) || all.frames.find((f) => f.kind === 'raw');
+    hdrFrame = all.frames.find((f) => f.kind === 'hdr');
+    await page.locator(`#runs-body tr[data-run="${runId}"] .browse-btn`).click();
+    await page.locator('#frames-card').waitFor({ state: 'visible' });
+    const countIs = async (n) => page.locator('#frames-count', { hasText: new RegExp(`^${n} frames? match`) }).waitFor();
+    await countIs(all.total);
+    const tiles = page.locator('#frames-grid .frame-tile');
+    const pageSize = await tiles.count();
+    if (pageSize !== Math.min(24, all.total)) throw new Failure(`${pageSize} tiles on the first page of ${all.total} frames`);
+    await page.waitForFunction(() => [...document.querySelectorAll('#frames-grid .frame-tile img')]
+      .every((i) => i.complete && i.naturalWidth > 0), null, { timeout: 60_000, polling: 250 });
+    await shot(page, 'frame-browser');
+    // Paging.
+    await page.click('#frames-next');
+    await page.locator('#frames-page', { hasText: `25–${Math.min(48, all.total)} of ${all.total}` }).waitFor();
+    await page.click('#frames-prev');
+    await page.locator('#frames-page', { hasText: `1–${pageSize} of ${all.total}` }).waitFor();
+    // Each filter gives what the API gives.
+    const checks = [
+      ['camera', '#f-camera', all.frames[0].camera, 'select'],
+      ['lamp', '#f-lamp', 'lamp1', 'select'],
+      ['step', '#f-step', String(hdrFrame ? hdrFrame.step : all.frames[0].step), 'fill'],
+      ['block', '#f-block', hdrFrame ? hdrFrame.block : all.frames[0].block, 'fill'],
+    ];
+    for (const [name, sel, value, how] of checks) {
+      await page.click('#f-clear');
+      await countIs(all.total);
+      const want = (await apiGet(base, op, `/api/runs/${runId}/frames?${name}=${encodeURIComponent(value)}&limit=0`)).total;
+      if (how === 'select') await page.selectOption(sel, value);
+      else await page.fill(sel, value);
+      await countIs(want);
+      const shown = await tiles.count();
+      if (shown !== Math.min(24, want)) throw new Failure(`${name}=${value}: ${shown} tiles for ${want} frames`);
+      if (name === 'camera') {
+        const cams = await tiles.evaluateAll((ts) => ts.map((t) => t.dataset.camera));
+        if (cams.some((c) => c !== value)) throw new Failure(`camera filter ${value} shows frames of ${[...new Set(cams)].join(', ')}`);
+      }
+      log(`filter ${name}=${value}: ${want} frames`);
+    }
+    await page.click('#f-clear');
+    await countIs(all.total);
+  });
+
+  await stage('open a raw frame in the viewer: histogram, saturation, exposure slider', async () => {
+    await page.fill('#f-step', String(rawFrame.step));
+    await page.selectOption('#f-camera', rawFrame.camera);
+    await page.locator(`#frames-grid .frame-tile[data-frame="${rawFrame.frame_id}"]`).click();
+    await page.locator('#viewer').waitFor({ state: 'visible' });
+    await page.locator('#viewer-canvas[data-ev]').waitFor();
+    await page.locator('#viewer-hist[data-drawn]').waitFor();
+    const info = await page.evaluate(() => {
+      const c = document.getElementById('viewer-canvas');
+      const hist = document.getElementById('viewer-hist');
+      const hd = hist.getContext('2d').getImageData(0, 0, hist.width, hist.height).data;
+      let lit = 0;
+      for (let i = 0; i < hd.length; i += 4) if (hd[i] + hd[i + 1] + hd[i + 2] > 60) lit++;
+      return { w: c.width, h: c.height, ev: c.dataset.ev, histLit: lit, sat: V.img.satSamples, shift: V.img.shift, maxDN: V.img.maxDN };
+    });
+    log(`viewer: ${info.w}×${info.h}, auto ${info.ev} EV, max DN ${info.maxDN}, shift ${info.shift}, ${info.sat} saturated samples, histogram ${info.histLit} lit pixels`);
+    if (info.w !== rawFrame.width || info.h !== rawFrame.height) throw new Failure(`the viewer shows ${info.w}×${info.h}, the frame is ${rawFrame.width}×${rawFrame.height}`);
+    if (info.histLit < 200) throw new Failure(`the histogram is (nearly) empty: ${info.histLit} lit pixels`);
+    if (info.sat !== rawFrame.saturated_samples) {
+      throw new Failure(`the viewer counts ${info.sat} saturated samples, the index ${rawFrame.saturated_samples}: the DN are not read exactly`);
+    }
+    const digest = () => page.evaluate(() => {
+      const c = document.getElementById('viewer-canvas');
+      const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+      let hsh = 0;
+      let sum = 0;
+      for (let i = 0; i < d.length; i += 4) {
+        hsh = (hsh * 31 + d[i] + 7 * d[i + 1] + 13 * d[i + 2]) | 0;
+        sum += d[i] + d[i + 1] + d[i + 2];
+      }
+      return { hsh, mean: sum / (d.length * 0.75) };
+    });
+    const before = await digest();
+    await shot(page, 'viewer-raw');
+    const target = Number(info.ev) >= 6 ? Number(info.ev) - 2 : Number(info.ev) + 2;
+    await page.locator('#viewer-exposure').fill(String(target));
+    await page.locator(`#viewer-canvas[data-ev="${target.toFixed(1)}"]`).waitFor();
+    const after = await digest();
+    log(`exposure ${info.ev} → ${target.toFixed(1)} EV: mean level ${before.mean.toFixed(1)} → ${after.mean.toFixed(1)}`);
+    if (after.hsh === before.hsh) throw new Failure('the exposure slider did not change the image');
+    if ((target > Number(info.ev)) !== (after.mean > before.mean)) throw new Failure('more exposure did not brighten the image');
+    await noErrorToasts(page, 'viewer');
+    await page.click('#viewer-close');
+    await page.locator('#viewer').waitFor({ state: 'hidden' });
+  });
+
+  await stage('the viewer reads DN exactly from low-bit and MSB-aligned (sBIT) PNGs', async () => {
+    // 12-bit DN stored as they are (today) or shifted to the top bits with sBIT and/or a
+    // sample_shift in the metadata (the storage change under way): the same DN either way.
+    const w = 19;
+    const hgt = 7;
+    const dn = Array.from({ length: w * hgt * 3 }, (_, i) => (i * 977 + 13) % 4096);
+    dn[0] = 4095;
+    dn[4] = 4095;
+    const variants = [
+      { name: 'low bits', shift: 0, sbit: false, info: { bit_depth: 12 } },
+      { name: 'MSB + sBIT', shift: 4, sbit: true, info: { bit_depth: 12 } },
+      { name: 'MSB + sample_shift', shift: 4, sbit: false, info: { bit_depth: 12, sample_shift: 4 } },
+      { name: 'MSB, no hint', shift: 4, sbit: false, info: { bit_depth: 12 } },
+    ];
+    for (const v of variants) {
+      const png = png16(w, hgt, dn.map((x) => x << v.shift), v.sbit ? 12 : null, JSON.stringify({ bit_depth: 12 }));
+      const got = await page.evaluate(async ({ b64, info }) => {
+        const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+        const im = prepareImage(info, await decodePng(bytes.buffer));
+        return { dn: Array.from(im.data), sat: im.satSamples, shift: im.shift };
+      }, { b64: png.toString('base64'), info: v.info });
+      const bad = got.dn.findIndex((x, i) => x !== dn[i]);
+      if (bad >= 0) throw new Failure(`${v.name}: sample ${bad} reads as DN ${got.dn[bad]}, stored DN ${dn[bad]}`);
+      const sat = dn.filter((x) => x === 4095).length;
+      if (got.sat !== sat) throw new Failure(`${v.name}: ${got.sat} saturated samples, expected ${sat}`);
+      log(`${v.name}: DN exact, shift ${got.shift}, ${got.sat} saturated`);
+    }
+  });
+
+  await stage('open an HDR frame in the viewer (tone-mapped)', async () => {
+    if (!hdrFrame) throw new Failure('quickstart recorded no HDR frame');
+    await page.click('#f-clear');
+    await page.selectOption('#f-kind', 'hdr');
+    await page.locator(`#frames-grid .frame-tile[data-frame="${hdrFrame.frame_id}"]`).click();
+    await page.locator('#viewer-canvas[data-ev]').waitFor();
+    await page.locator('#viewer-hist[data-drawn]').waitFor();
+    const mean = await page.evaluate(() => {
+      const c = document.getElementById('viewer-canvas');
+      const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+      let s = 0;
+      for (let i = 0; i < d.length; i += 4) s += d[i] + d[i + 1] + d[i + 2];
+      return s / (d.length * 0.75);
+    });
+    log(`HDR frame ${hdrFrame.frame_id}: mean display level ${mean.toFixed(1)} of 255`);
+    if (!(mean > 3 && mean < 250)) throw new Failure(`the tone-mapped HDR frame is ${mean < 3 ? 'black' : 'white'} (mean ${mean.toFixed(1)})`);
+    await shot(page, 'viewer-hdr');
+    await page.keyboard.press('Escape');
+    await page.locator('#viewer').waitFor({ state: 'hidden' });
+    await page.click('#frames-close');
+  });
+
+  await stage('a single capture from the page', async () => {
+    await page.fill('#capture-exposure', '5');
+    await page.click('#capture-btn');
+    const note = page.locator('#capture-note', { hasText: /frame\(s\) in run/ });
+    await note.waitFor({ timeout: 120_000 });
+    const capRun = await note.getAttribute('data-run');
+    const detail = await apiGet(base, op, `/api/runs/${capRun}`);
+    const cams = (await status()).devices.cameras.length;
+    if (detail.frames !== cams) throw new Failure(`the capture run ${capRun} has ${detail.frames} frames for ${cams} cameras`);
+    await page.locator(`#runs-body tr[data-run="${capRun}"] .run-status`, { hasText: 'done' }).waitFor();
+    log(`capture: run ${capRun}, ${detail.frames} frames: ${await page.locator('#capture-note').innerText()}`);
+    await noErrorToasts(page, 'capture');
+  });
+
+  let run2 = null;
+  await stage('a parameter fixed just before Start needs one click', async () => {
+    await page.selectOption('#script-select', 'quickstart');
+    await page.locator('#dryrun .dryrun-head').waitFor();
+    // A mistake in the parameters is shown as it is typed and keeps Start off...
+    await page.fill('#script-set', 'lamp_count=1 sweep_lines');
+    await page.locator('#dryrun .error-text', { hasText: 'sweep_lines' }).waitFor();
+    if (!(await page.locator('#run-start').isDisabled())) throw new Failure('Start is enabled with a malformed parameter');
+    // ...and once fixed, one click starts the run, though its dry run is still on its way.
+    await page.fill('#script-set', 'lamp_count=1 sweep_lines=2');
+    await page.click('#run-start');
+    await page.locator('#prompt-banner').waitFor({ state: 'visible' });
+    run2 = (await status()).run.run_id;
+    const detail = await apiGet(base, op, `/api/runs/${run2}`);
+    if (detail.manifest.params.lamp_count !== 1 || detail.manifest.params.sweep_lines !== 2) {
+      throw new Failure(`run ${run2} started with ${JSON.stringify(detail.manifest.params)}, not the typed parameters`);
+    }
+    await page.click('#prompt-continue');
+    await page.locator('#prompt-banner').waitFor({ state: 'hidden' });
+  });
+
+  await stage('pause and abort the run, resume it from the history to the end', async () => {
+    await page.waitForFunction(() => Number(document.querySelector('#run-progress').getAttribute('aria-valuenow')) >= 20,
+      null, { timeout: RUN_TIMEOUT_MS, polling: 100 });
+    await page.click('#run-pause');
+    await page.locator('#run-badge', { hasText: 'paused' }).waitFor();
+    await page.click('#run-abort');
+    await page.locator('#run-badge', { hasText: 'aborted' }).waitFor();
+    const row = page.locator(`#runs-body tr[data-run="${run2}"]`);
+    await row.locator('.run-status', { hasText: 'aborted' }).waitFor();
+    // The daemon's `warning` event about the stop shows in the banner until the run runs again.
+    await page.locator('#warning-banner', { hasText: `run ${run2} aborted` }).waitFor();
+    const stopped = (await apiGet(base, op, '/api/runs')).find((r) => r.run_id === run2);
+    log(`aborted at ${stopped.steps_done}/${stopped.steps_total} steps`);
+    await shot(page, 'aborted');
+    await row.locator('.resume-btn').click();
+    await page.locator('#warning-banner').waitFor({ state: 'hidden' });
+    await page.locator('#run-badge', { hasText: 'finished' }).waitFor({ timeout: RUN_TIMEOUT_MS });
+    const done = (await apiGet(base, op, '/api/runs')).find((r) => r.run_id === run2);
+    if (done.status !== 'done' || done.steps_done !== done.steps_total) throw new Failure(`after resume: ${JSON.stringify(done)}`);
+    await row.locator('.run-status', { hasText: 'done' }).waitFor();
+    log(`resumed to ${done.steps_done}/${done.steps_total} steps, ${done.frames} frames`);
+    await noErrorToasts(page, 'resume');
+    await shot(page, 'resumed');
+  });
+
+  await stage('upload a script, edit it with the dry run as it is typed, save, delete', async () => {
+    const good = 'home();\nonly_lamp(lamps()[0]);\ncapture(0.01);\nlamps_off();\n';
+    await page.fill('#script-set', ''); // quickstart's parameters do not apply to this script
+    await page.setInputFiles('#script-upload', { name: 'e2e tour.rhai', mimeType: 'text/plain', buffer: Buffer.from(good) });
+    await page.locator('#editor').waitFor({ state: 'visible' });
+    const name = await page.inputValue('#editor-name');
+    if (name !== 'e2e_tour') throw new Failure(`the uploaded script is named "${name}"`);
+    await page.locator('#script-select option[value="e2e_tour"]').waitFor({ state: 'attached' });
+    if ((await page.inputValue('#script-select')) !== 'e2e_tour') throw new Failure('the uploaded script is not selected');
+    await page.locator('#editor-dryrun .dryrun-head', { hasText: 'ready to run' }).waitFor();
+    // Type a move outside the turntable's travel: the violation appears while typing.
+    await page.click('#editor-text');
+    await page.keyboard.press('Control+End');
+    await page.keyboard.type('move_to(#{turntable: 400.0});\n');
+    const v = page.locator('#editor-dryrun .violations li.sev-error', { hasText: 'turntable' });
+    await v.waitFor();
+    const vt = await v.innerText();
+    log(`violation while typing: ${vt}`);
+    if (!/^5:1\b/.test(vt)) throw new Failure(`the violation does not say line 5, column 1: "${vt}"`);
+    await page.locator('#editor-dryrun .dryrun-head', { hasText: 'cannot run' }).waitFor();
+    await shot(page, 'editor-violation');
+    // A syntax error names its place too.
+    await page.keyboard.type('captur(0.01);');
+    await page.locator('#editor-dryrun .error-text', { hasText: /6:1/ }).waitFor();
+    // Fix it and save.
+    await page.fill('#editor-text', `${good}move_to(#{turntable: 40.0});\ncapture(0.01);\n`);
+    await page.locator('#editor-dryrun .dryrun-head', { hasText: 'ready to run' }).waitFor();
+    await page.click('#editor-save');
+    await page.locator('#editor-status', { hasText: 'Saved as e2e_tour' }).waitFor();
+    const res = await fetch(`${base}/api/scripts/e2e_tour`, { headers: { Authorization: `Bearer ${op}` } });
+    if (!(await res.text()).includes('turntable: 40.0')) throw new Failure('the saved script does not hold the edit');
+    await page.locator('#dryrun .dryrun-head', { hasText: 'ready to run' }).waitFor();
+    await noErrorToasts(page, 'editor');
+    await page.click('#script-delete');
+    await page.locator('#script-select option[value="e2e_tour"]').waitFor({ state: 'detached' });
+    const left = await apiGet(base, op, '/api/scripts');
+    if (left.some((x) => x.name === 'e2e_tour')) throw new Failure('the script is still listed after Delete');
+    if (!(await page.locator('#editor').isHidden())) throw new Failure('the editor still shows the deleted script');
+    await noErrorToasts(page, 'delete');
+    // A new script starts from a template that is ready to run on this rig.
+    await page.click('#script-new');
+    await page.locator('#editor').waitFor({ state: 'visible' });
+    await page.locator('#editor-dryrun .dryrun-head', { hasText: 'ready to run' }).waitFor();
+    await page.click('#editor-close');
+    await page.locator('#editor').waitFor({ state: 'hidden' });
   });
 
   await stage('jog an axis', async () => {
@@ -338,6 +671,7 @@ async function main() {
     await bad.locator('#login').waitFor({ state: 'visible' });
     const msg = await bad.locator('#login-error').innerText();
     if (!/token/i.test(msg)) throw new Failure(`the sign-in box says "${msg}" for a wrong token`);
+    if (await bad.locator('#estop').isVisible()) throw new Failure('E-STOP is shown before signing in');
     await bad.close();
   });
 }

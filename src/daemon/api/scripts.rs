@@ -86,6 +86,27 @@ async fn put_script(
     Ok(ApiJson(dry))
 }
 
+/// Deletes an uploaded script (built-in scripts cannot be deleted: 409).
+#[utoipa::path(delete, path = "/api/scripts/{name}", tag = "scripts",
+    params(("name" = String, Path, description = "Script name, with or without `.rhai`")),
+    responses(
+        (status = 204, description = "Deleted"),
+        (status = 400, description = "Bad name", body = crate::daemon::error::ErrorBody),
+        (status = 403, description = "Read-only token", body = crate::daemon::error::ErrorBody),
+        (status = 404, description = "No such uploaded script", body = crate::daemon::error::ErrorBody),
+        (status = 409, description = "A built-in script", body = crate::daemon::error::ErrorBody),
+    ))]
+async fn delete_script(
+    State(app): State<AppState>,
+    ApiPath(name): ApiPath<String>,
+) -> ApiResult<StatusCode> {
+    let lib = Library::of(&app);
+    tokio::task::spawn_blocking(move || lib.remove(&name))
+        .await
+        .map_err(|e| ApiError::internal(format!("deleting the script stopped: {e}")))??;
+    Ok(StatusCode::NO_CONTENT)
+}
+
 /// Reads a request body of at most `limit` bytes: 413 beyond (without reading the rest).
 async fn read_limited(body: Body, limit: usize) -> ApiResult<Vec<u8>> {
     use futures_util::StreamExt;
@@ -195,7 +216,7 @@ async fn validate_text(
 pub fn routes() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(list_scripts))
-        .routes(routes!(get_script, put_script))
+        .routes(routes!(get_script, put_script, delete_script))
         .routes(routes!(validate_script))
         .routes(routes!(validate_text))
 }
