@@ -16,7 +16,8 @@ use utoipa::ToSchema;
 
 /// How many events a subscriber may fall behind before it is resynchronised.
 pub const CHANNEL_CAPACITY: usize = 1024;
-/// How many events `GET /api/events/recent` keeps.
+/// How many events `GET /api/events/recent` keeps (and a reconnecting SSE client can be
+/// replayed with `Last-Event-ID`).
 pub const RECENT: usize = 200;
 
 /// One published event.
@@ -49,6 +50,7 @@ impl Default for EventHub {
 }
 
 impl EventHub {
+    /// A hub with no event yet.
     pub fn new() -> Self {
         Self {
             tx: broadcast::channel(CHANNEL_CAPACITY).0,
@@ -83,6 +85,26 @@ impl EventHub {
     /// A receiver of every event published from now on.
     pub fn subscribe(&self) -> broadcast::Receiver<HubEvent> {
         self.tx.subscribe()
+    }
+
+    /// A receiver of every event published from now on and, when the ring still holds every
+    /// event after `after` (the SSE `Last-Event-ID` a reconnecting client sends), those
+    /// events, oldest first: together exactly the events after `after`, none twice. `None`
+    /// when some of them already left the ring (or `after` is from before a restart): the
+    /// client must resynchronise instead.
+    pub fn subscribe_after(
+        &self,
+        after: u64,
+    ) -> (broadcast::Receiver<HubEvent>, Option<Vec<HubEvent>>) {
+        // Publishing holds the ring lock while it sends: subscribing under it splits the
+        // events exactly between the ring and the receiver.
+        let recent = self.recent.lock().unwrap_or_else(|p| p.into_inner());
+        let rx = self.tx.subscribe();
+        let last = self.seq.load(Ordering::Relaxed);
+        let oldest = recent.front().map_or(last + 1, |e| e.seq);
+        let missed = (after <= last && oldest <= after + 1)
+            .then(|| recent.iter().filter(|e| e.seq > after).cloned().collect());
+        (rx, missed)
     }
 
     /// The last [`RECENT`] events, oldest first.

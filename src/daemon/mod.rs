@@ -97,26 +97,28 @@ pub struct RunningDaemon {
 impl RunningDaemon {
     /// Stops serving: aborts any run, puts the rig in its safe state, closes the listener.
     /// The rig is made safe first, before any client is waited for.
+    /// The run's final `run` event reaches the SSE clients before their streams end.
     pub async fn shutdown(mut self) {
         self.state.runs.abort();
         self.state.estop.latch();
         if let Err(e) = self.state.rig.safe_state().await {
             tracing::error!("shutdown: safe state: {e}");
         }
-        self.state.hub.close();
-        if let Some(tx) = self.shutdown.take() {
-            let _ = tx.send(());
-        }
         let grace = std::time::Duration::from_secs(SHUTDOWN_GRACE_S);
-        if tokio::time::timeout(grace, &mut self.server).await.is_err() {
-            tracing::warn!("shutdown: clients still connected after {SHUTDOWN_GRACE_S} s; closing");
-            self.server.abort();
-        }
+        // The aborted run publishes its final event once it has wound down.
         if tokio::time::timeout(grace, self.state.runs.wait_idle())
             .await
             .is_err()
         {
             tracing::warn!("shutdown: the run did not wind down within {SHUTDOWN_GRACE_S} s");
+        }
+        self.state.hub.close();
+        if let Some(tx) = self.shutdown.take() {
+            let _ = tx.send(());
+        }
+        if tokio::time::timeout(grace, &mut self.server).await.is_err() {
+            tracing::warn!("shutdown: clients still connected after {SHUTDOWN_GRACE_S} s; closing");
+            self.server.abort();
         }
         // The run's own abort path ends in the safe state too; make sure of it.
         if let Err(e) = self.state.rig.safe_state().await {

@@ -201,12 +201,15 @@ pub async fn resume_stored(app: &AppState, run_id: &str) -> Result<Arc<ActiveRun
         let dir = dir.clone();
         tokio::task::spawn_blocking(move || {
             let stored = stored_runs::read(&dir);
-            session::reopen(&dir).map(|r| (r, stored))
+            session::reopen(&dir).map(|r| {
+                let eta = remaining_rig_time_s(&r);
+                (r, stored, eta)
+            })
         })
         .await
         .map_err(|e| ApiError::internal(format!("reopening the run stopped: {e}")))?
     };
-    let (reopened, stored) = opened.map_err(|e| match e {
+    let (reopened, stored, remaining_s) = opened.map_err(|e| match e {
         SessionError::Storage(StorageError::RunInUse { .. }) => {
             refused("another process is writing it".into())
         }
@@ -243,12 +246,30 @@ pub async fn resume_stored(app: &AppState, run_id: &str) -> Result<Arc<ActiveRun
         total_steps: reopened.plan.steps.len(),
         steps_done: stored.steps_done,
         frames_written: stored.frames,
-        estimated_rig_time_s: 0.0,
+        estimated_rig_time_s: remaining_s,
     };
     let rig = app.rig.clone();
     reservation.launch(spec, move |wiring| {
         session::resume_on(reopened, rig, wiring)
     })
+}
+
+/// The estimated rig time of the steps a resumed run still has to do (from its first step not
+/// yet durable, as the executor estimates it), so a resume answers a real ETA.
+fn remaining_rig_time_s(r: &session::Reopened) -> f64 {
+    use crate::estimate::{estimate_from, state_before};
+    let done = match r.store.done_steps() {
+        Ok(done) => done,
+        Err(e) => {
+            tracing::warn!("cannot read the run's done steps for its ETA: {e}");
+            Default::default()
+        }
+    };
+    let first = (0..r.plan.steps.len())
+        .find(|i| !done.contains(i))
+        .unwrap_or(r.plan.steps.len());
+    let start = state_before(&r.plan, &r.rig.spec, first);
+    estimate_from(&r.plan, &r.rig.spec, first, &start).rig_time_s
 }
 
 /// The rig's state a single capture re-creates.

@@ -17,7 +17,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use crate::daemon::device_state::{self, AxisState, LampState, LaserState};
-use crate::daemon::error::{ApiError, ApiJson, ApiPath, ApiResult, ErrorBody};
+use crate::daemon::error::{ApiError, ApiJson, ApiPath, ApiResult, ErrorBody, object_body};
 use crate::daemon::estop::{self, EStopReport};
 use crate::daemon::jog_ws;
 use crate::daemon::manual::{self, device_error};
@@ -120,15 +120,12 @@ fn finite(name: &str, v: f64) -> ApiResult<f64> {
     }
 }
 
-/// Parses an optional JSON body (empty → default).
+/// Parses an optional JSON object body (empty → default).
 fn optional_body<T: DeserializeOwned + Default>(body: &Bytes) -> ApiResult<T> {
     if body.iter().all(u8::is_ascii_whitespace) {
         return Ok(T::default());
     }
-    serde_json::from_slice(body).map_err(|e| {
-        ApiError::bad_request(format!("request body: {e}"))
-            .hint("send a JSON object as /openapi.json describes, or no body")
-    })
+    object_body(body)
 }
 
 /// Counts a manual command by kind and outcome.
