@@ -291,3 +291,239 @@ async fn sse_replays_missed_events_and_shutdown_sends_the_runs_final_event() {
     assert_eq!(last_run.data["data"]["run_id"], id.as_str());
     assert_eq!(last_run.data["data"]["status"], "aborted", "{last_run:?}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn health_needs_no_token_and_every_answer_has_security_headers() {
+    let (d, _dir) = daemon().await;
+    let api = Api::operator(&d);
+    common::blocking(move || {
+        let h = api.get_anonymous("/api/health");
+        assert_eq!(h.status, 200, "{}", h.body);
+        assert_eq!(h.body["status"], "ok");
+        assert_eq!(h.body["version"], env!("CARGO_PKG_VERSION"));
+        assert!(h.body["uptime_s"].as_f64().expect("uptime") >= 0.0);
+        let keys: Vec<&String> = h.body.as_object().expect("object").keys().collect();
+        assert_eq!(keys.len(), 3, "health says nothing else: {}", h.body);
+        assert!(!h.body.to_string().contains(&api.token));
+        // Everything else under /api/ still needs a token.
+        assert_eq!(api.get_anonymous("/api/status").status, 401);
+
+        for path in [
+            "/",
+            "/app.js",
+            "/style.css",
+            "/api/status",
+            "/api/health",
+            "/api/nope",
+        ] {
+            let r = if path == "/api/health" {
+                api.get_anonymous(path)
+            } else {
+                api.get_reply(path)
+            };
+            assert_eq!(r.header("x-frame-options"), "DENY", "{path}");
+            assert_eq!(r.header("x-content-type-options"), "nosniff", "{path}");
+            let csp = r.header("content-security-policy");
+            assert!(csp.contains("default-src 'self'"), "{path}: {csp}");
+            assert!(csp.contains("script-src 'self'"), "{path}: {csp}");
+            assert!(!csp.contains("unsafe-eval"), "{path}: {csp}");
+            assert!(csp.contains("frame-ancestors 'none'"), "{path}: {csp}");
+        }
+        let unauthorised = api.get_anonymous("/api/status");
+        assert_eq!(unauthorised.header("x-frame-options"), "DENY");
+        let docs = api.get_reply("/docs/");
+        assert_eq!(docs.header("x-content-type-options"), "nosniff");
+        // The dashboard runs under that policy: no inline script or style element.
+        let (_, html) = api.get("/");
+        let html = html.as_str().expect("html").to_string();
+        assert!(!html.contains("<style"), "inline style element");
+        for tag in html.split("<script").skip(1) {
+            let open = &tag[..tag.find('>').expect("tag end")];
+            assert!(open.contains("src="), "inline script: <script{open}>");
+        }
+    })
+    .await;
+    d.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_script_that_fails_validation_answers_its_violations_as_a_list() {
+    let (d, _dir) = daemon().await;
+    let api = Api::operator(&d);
+    common::blocking(move || {
+        // Line 3 moves out of the soft limits; line 4 captures with a camera the rig lacks.
+        let bad = "// bad.rhai\nhome();\nmove_to(#{turntable: 1000.0});\ncapture(0.01);\n";
+        let (s, v) = api.put_text("/api/scripts/bad", bad);
+        assert_eq!(s, 200, "{v}");
+        let (s, v) = api.post("/api/runs", Some(json!({"script": "bad"})));
+        assert_eq!(s, 422, "{v}");
+        let violations = v["violations"].as_array().expect("violations");
+        assert!(!violations.is_empty(), "{v}");
+        let limit = violations
+            .iter()
+            .find(|x| x["line"] == 3)
+            .unwrap_or_else(|| panic!("a violation at line 3: {v}"));
+        assert!(limit["col"].as_u64().expect("col") >= 1, "{limit}");
+        assert!(
+            limit["message"]
+                .as_str()
+                .expect("message")
+                .contains("turntable")
+        );
+
+        // A script that does not compile: one violation at its place.
+        let (s, _) = api.put_text("/api/scripts/broken", "home();\nmove_to(#{turntable: );\n");
+        assert_eq!(s, 200);
+        let (s, v) = api.post("/api/runs", Some(json!({"script": "broken"})));
+        assert_eq!(s, 422, "{v}");
+        assert_eq!(v["violations"][0]["line"], 2, "{v}");
+
+        // A parameter of the wrong kind: a violation without a place in the script.
+        let (s, v) = api.post(
+            "/api/runs",
+            Some(json!({"script": "quickstart", "set": {"lamp_count": {"a": 1}}})),
+        );
+        assert_eq!(s, 422, "{v}");
+        assert_eq!(v["violations"][0]["line"], Value::Null, "{v}");
+        assert!(
+            v["violations"][0]["message"]
+                .as_str()
+                .expect("message")
+                .contains("lamp_count")
+        );
+        // Other errors carry no list.
+        let (s, v) = api.post("/api/runs", Some(json!({"script": "nope"})));
+        assert_eq!(s, 404);
+        assert!(v.get("violations").is_none(), "{v}");
+    })
+    .await;
+    d.shutdown().await;
+}
+
+/// The position of axis `id` in the status.
+fn axis(api: &Api, id: &str) -> Value {
+    let (_, st) = api.get("/api/status");
+    st["devices"]["axes"]
+        .as_array()
+        .and_then(|a| a.iter().find(|a| a["id"] == id))
+        .cloned()
+        .unwrap_or_else(|| panic!("no axis {id}: {st}"))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn several_axes_move_at_once_with_the_single_move_checks() {
+    let (d, _dir) = daemon().await;
+    let api = Api::operator(&d);
+    let ro = Api::new(&d, &d.state.tokens.read_only);
+    common::blocking(move || {
+        // Not homed: refused, nothing moves.
+        let v = api.expect(
+            409,
+            "/api/axes/move",
+            Some(json!({"targets": {"turntable": 90.0, "light_arc": 30.0}})),
+        );
+        assert!(v["hint"].as_str().expect("hint").contains("home"), "{v}");
+        api.expect(200, "/api/axes/turntable/home", None);
+        api.expect(200, "/api/axes/light_arc/home", None);
+        // One target outside the limits, one unknown axis, none at all: nothing moves.
+        let v = api.expect(
+            422,
+            "/api/axes/move",
+            Some(json!({"targets": {"turntable": 90.0, "light_arc": 1000.0}})),
+        );
+        assert!(
+            v["error"].as_str().expect("error").contains("light_arc"),
+            "{v}"
+        );
+        api.expect(
+            404,
+            "/api/axes/move",
+            Some(json!({"targets": {"turntable": 90.0, "elevator": 1.0}})),
+        );
+        api.expect(422, "/api/axes/move", Some(json!({"targets": {}})));
+        api.expect(
+            422,
+            "/api/axes/move",
+            Some(json!({"targets": {"turntable": "east"}})),
+        );
+        assert!(
+            axis(&api, "turntable")["position_deg"]
+                .as_f64()
+                .expect("pos")
+                .abs()
+                < 1e-6
+        );
+
+        // Both at once: at some moment both are moving.
+        let mover = api.clone();
+        let moving = std::thread::spawn(move || {
+            mover.post(
+                "/api/axes/move",
+                Some(json!({"targets": {"turntable": 120.0, "light_arc": 30.0}})),
+            )
+        });
+        common::eventually(30, "both axes moving together", || {
+            axis(&api, "turntable")["moving"] == true && axis(&api, "light_arc")["moving"] == true
+        });
+        let (s, v) = moving.join().expect("mover");
+        assert_eq!(s, 200, "{v}");
+        let arrived = v.as_array().expect("axes");
+        assert_eq!(arrived.len(), 2, "{v}");
+        for (a, want) in arrived.iter().zip([30.0, 120.0]) {
+            let pos = a["position_deg"].as_f64().expect("position");
+            assert!((pos - want).abs() < 0.01, "{a}");
+            assert_eq!(a["moving"], false);
+        }
+        // The read-only token may not.
+        let (s, _) = ro.post(
+            "/api/axes/move",
+            Some(json!({"targets": {"turntable": 1.0}})),
+        );
+        assert_eq!(s, 403);
+    })
+    .await;
+    d.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_lamp_switches_while_an_axis_moves_but_the_axis_takes_one_command_at_a_time() {
+    let (d, _dir) = daemon().await;
+    let api = Api::operator(&d);
+    common::blocking(move || {
+        api.expect(200, "/api/axes/turntable/home", None);
+        // A move of several seconds in the background.
+        let mover = api.clone();
+        let long_move = std::thread::spawn(move || {
+            mover.post(
+                "/api/axes/turntable/move",
+                Some(json!({"target_deg": 300.0})),
+            )
+        });
+        common::eventually(10, "the turntable moves", || {
+            axis(&api, "turntable")["moving"] == true
+        });
+        // Other devices answer during the move…
+        let v = api.expect(200, "/api/lamps/lamp1", Some(json!({"on": true})));
+        assert_eq!(v["on"], true);
+        api.expect(200, "/api/lamps/off", None);
+        api.expect(200, "/api/laser/arm", Some(json!({"confirm": true})));
+        api.expect(200, "/api/axes/light_arc/home", None);
+        // …while the turntable is still on its way: nothing waited for it.
+        assert_eq!(
+            axis(&api, "turntable")["moving"],
+            true,
+            "the move ended first"
+        );
+        // The same axis still takes one command at a time.
+        let v = api.expect(409, "/api/axes/turntable/home", None);
+        assert!(
+            v["error"].as_str().expect("error").contains("in progress"),
+            "{v}"
+        );
+        api.expect(200, "/api/axes/turntable/stop", None);
+        let (s, v) = long_move.join().expect("mover");
+        assert_eq!(s, 409, "the stopped move: {v}");
+    })
+    .await;
+    d.shutdown().await;
+}

@@ -31,11 +31,12 @@ use std::sync::{Arc, OnceLock};
 
 use axum::Router;
 use axum::extract::DefaultBodyLimit;
-use axum::http::{StatusCode, Uri};
+use axum::http::{HeaderValue, StatusCode, Uri, header};
 use axum::response::IntoResponse;
 use metrics_exporter_prometheus::{PrometheusBuilder, PrometheusHandle};
 use stagehand_devices::clock::RigClock;
 use tokio::sync::oneshot;
+use tower_http::set_header::SetResponseHeaderLayer;
 use utoipa_swagger_ui::SwaggerUi;
 
 use self::auth::Tokens;
@@ -188,7 +189,8 @@ pub async fn start(opts: ServeOptions) -> Result<RunningDaemon, DaemonError> {
         runs: runs::RunManager::default(),
         estop: estop::EStop::default(),
         metrics: metrics_handle(),
-        manual: tokio::sync::Mutex::new(()),
+        manual: manual::ManualLocks::default(),
+        started: std::time::Instant::now(),
     };
     let state = AppState(Arc::new(daemon));
     device_state::spawn_device_watch(state.clone());
@@ -229,6 +231,8 @@ pub async fn start(opts: ServeOptions) -> Result<RunningDaemon, DaemonError> {
 /// document and Swagger UI, the dashboard, and a JSON 404 for everything else.
 pub fn router(state: AppState) -> Router {
     let (api, mut openapi) = api::routes().split_for_parts();
+    let (public, public_doc) = api::public_routes().split_for_parts();
+    openapi.merge(public_doc);
     api::document_common_errors(&mut openapi);
     let api = api
         .layer(axum::middleware::from_fn_with_state(
@@ -236,14 +240,37 @@ pub fn router(state: AppState) -> Router {
             auth::require_token,
         ))
         .layer(DefaultBodyLimit::max(MAX_BODY_BYTES));
-    Router::new()
+    let own = Router::new()
         .merge(api)
+        .merge(public)
         .merge(web::routes())
-        .with_state(state)
-        .merge(SwaggerUi::new("/docs").url("/openapi.json", openapi))
         .fallback(not_found)
+        .layer(SetResponseHeaderLayer::if_not_present(
+            header::CONTENT_SECURITY_POLICY,
+            HeaderValue::from_static(CONTENT_SECURITY_POLICY),
+        ));
+    own.with_state(state)
+        .merge(SwaggerUi::new("/docs").url("/openapi.json", openapi))
         .layer(axum::middleware::from_fn(error::json_errors))
+        .layer(SetResponseHeaderLayer::overriding(
+            header::X_FRAME_OPTIONS,
+            HeaderValue::from_static("DENY"),
+        ))
+        .layer(SetResponseHeaderLayer::overriding(
+            header::X_CONTENT_TYPE_OPTIONS,
+            HeaderValue::from_static("nosniff"),
+        ))
 }
+
+/// The Content-Security-Policy of the dashboard and the API: only the daemon's own scripts,
+/// styles, images and connections (no inline script, no other origin, no framing).
+/// `style-src-attr 'unsafe-inline'` allows `style="…"` attributes only (the dashboard sets a
+/// camera tile's aspect ratio that way), never a `<style>` element or inline script. Swagger UI
+/// (`/docs/`) is vendored code with inline styles and keeps only the headers below.
+pub const CONTENT_SECURITY_POLICY: &str = "default-src 'self'; script-src 'self'; \
+    style-src 'self'; style-src-attr 'unsafe-inline'; img-src 'self' data: blob:; \
+    connect-src 'self'; object-src 'none'; base-uri 'none'; form-action 'self'; \
+    frame-ancestors 'none'";
 
 async fn not_found(uri: Uri) -> impl IntoResponse {
     ApiError::new(StatusCode::NOT_FOUND, format!("no route {}", uri.path()))

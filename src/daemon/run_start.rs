@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
 use super::device_state::{self, DevicesState};
-use super::error::ApiError;
+use super::error::{ApiError, ViolationItem};
 use super::frame_index::{self, FrameInfo};
 use super::runs::{ActiveRun, LaunchSpec, Reservation};
 use super::scripts::{self, EstimateInfo, Library, ViolationInfo};
@@ -82,14 +82,38 @@ fn refuse_if_latched(app: &AppState) -> Result<(), ApiError> {
 }
 
 /// Maps a failed `prepare` / `create_run`: the script's fault is a 422 saying where.
+/// Script errors and plan violations also come as a list of `{line, col, message}`.
 fn session_error(script: &str, e: SessionError) -> ApiError {
     match e {
-        SessionError::Script(e) => ApiError::unprocessable(e.to_string()).hint(format!(
-            "fix the script; `POST /api/scripts/{script}/validate` shows the dry run"
-        )),
-        e @ SessionError::Invalid(..) => ApiError::unprocessable(e.to_string()).hint(format!(
-            "fix the errors above; `POST /api/scripts/{script}/validate` shows the dry run"
-        )),
+        SessionError::Script(e) => {
+            let (line, col) = e.position().unzip();
+            let item = ViolationItem {
+                line,
+                col,
+                message: e.to_string(),
+            };
+            ApiError::unprocessable(e.to_string())
+                .hint(format!(
+                    "fix the script; `POST /api/scripts/{script}/validate` shows the dry run"
+                ))
+                .violations(vec![item])
+        }
+        SessionError::Invalid(ref violations, _) => {
+            let items = violations
+                .iter()
+                .filter(|v| v.severity == crate::validate::Severity::Error)
+                .map(|v| ViolationItem {
+                    line: Some(v.at.line),
+                    col: Some(v.at.col),
+                    message: v.message.clone(),
+                })
+                .collect();
+            ApiError::unprocessable(e.to_string())
+                .hint(format!(
+                    "fix the errors above; `POST /api/scripts/{script}/validate` shows the dry run"
+                ))
+                .violations(items)
+        }
         e => ApiError::internal(format!("cannot create the run: {e}")),
     }
 }

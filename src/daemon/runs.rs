@@ -380,7 +380,7 @@ impl Reservation {
     /// Waits for a manual device command in flight to finish (none starts while the slot is
     /// claimed), then fails if the e-stop latched or an abort came while the run was prepared.
     pub async fn settle(&self) -> Result<(), ApiError> {
-        match tokio::time::timeout(MANUAL_WAIT, self.app.manual.lock()).await {
+        match tokio::time::timeout(MANUAL_WAIT, self.app.manual.all()).await {
             Ok(guard) => drop(guard),
             Err(_) => {
                 return Err(ApiError::conflict(

@@ -57,7 +57,7 @@ impl Modify for CommonErrors {
                 .build()
         };
         for (path, item) in openapi.paths.paths.iter_mut() {
-            if !path.starts_with("/api/") {
+            if !path.starts_with("/api/") || path == "/api/health" {
                 continue;
             }
             let operations = [
@@ -97,6 +97,11 @@ impl Modify for CommonErrors {
 /// routes are merged): the errors every route can answer.
 pub fn document_common_errors(openapi: &mut utoipa::openapi::OpenApi) {
     CommonErrors.modify(openapi);
+}
+
+/// The API routes that need no token (`GET /api/health`), with their OpenAPI description.
+pub fn public_routes() -> OpenApiRouter<AppState> {
+    status::public_routes()
 }
 
 /// Every API route with its OpenAPI description (paths relative to the server root).

@@ -198,6 +198,35 @@ async fn whoami(role: Option<Extension<Role>>) -> ApiJson<WhoAmI> {
     ApiJson(WhoAmI { role })
 }
 
+/// `GET /api/health`: for load balancers and monitoring, without a token.
+#[derive(Debug, Clone, Serialize, ToSchema)]
+pub struct Health {
+    /// `ok` while the daemon serves.
+    pub status: String,
+    /// The daemon's software version.
+    pub version: String,
+    /// Seconds since the daemon started.
+    pub uptime_s: f64,
+}
+
+/// Whether the daemon is up: status, version and uptime. Needs no token and says nothing
+/// else (no rig, run or device state).
+#[utoipa::path(get, path = "/api/health", tag = "status", security(()),
+    responses((status = 200, body = Health)))]
+async fn health(State(app): State<AppState>) -> ApiJson<Health> {
+    ApiJson(Health {
+        status: "ok".into(),
+        version: env!("CARGO_PKG_VERSION").into(),
+        uptime_s: app.started.elapsed().as_secs_f64(),
+    })
+}
+
+/// The routes that need no token (outside the token check).
+pub fn public_routes() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new().routes(routes!(health))
+}
+
+/// The status, event and metrics routes.
 pub fn routes() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(whoami))
