@@ -527,3 +527,141 @@ async fn a_lamp_switches_while_an_axis_moves_but_the_axis_takes_one_command_at_a
     .await;
     d.shutdown().await;
 }
+
+/// A run that ends on its own: one capture.
+const QUICK: &str = "// quick.rhai\nhome();\ncapture(0.01, #{cameras: [\"cam1\"]});\n";
+
+/// The queue now.
+fn queue(api: &Api) -> Value {
+    let (s, q) = api.get("/api/queue");
+    assert_eq!(s, 200, "{q}");
+    q
+}
+
+/// The ids of the queued items, in order.
+fn queued(api: &Api) -> Vec<u64> {
+    queue(api)["items"]
+        .as_array()
+        .expect("items")
+        .iter()
+        .filter_map(|i| i["item_id"].as_u64())
+        .collect()
+}
+
+/// Queues `script`; the item id.
+fn submit(api: &Api, script: &str) -> u64 {
+    let v = api.expect(201, "/api/queue", Some(json!({"script": script})));
+    v["item_id"].as_u64().expect("item id")
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn queued_runs_start_in_order_and_can_be_reordered_removed_and_paused() {
+    let (d, _dir) = daemon().await;
+    let api = Api::operator(&d);
+    common::blocking(move || {
+        assert_eq!(api.put_text("/api/scripts/prompted", PROMPTED).0, 200);
+        assert_eq!(api.put_text("/api/scripts/quick", QUICK).0, 200);
+        // Refused at submission: unknown script, a script that fails its dry run.
+        api.expect(404, "/api/queue", Some(json!({"script": "nope"})));
+        let bad = "home();\nmove_to(#{turntable: 1000.0});\n";
+        assert_eq!(api.put_text("/api/scripts/bad", bad).0, 200);
+        let v = api.expect(422, "/api/queue", Some(json!({"script": "bad"})));
+        assert_eq!(v["violations"][0]["line"], 2, "{v}");
+
+        // The first starts at once (the rig is idle) and waits at its prompt.
+        let a = submit(&api, "prompted");
+        let b = submit(&api, "quick");
+        let c = submit(&api, "quick");
+        wait_prompt(&api, 0);
+        let q = queue(&api);
+        assert_eq!(q["running"], true, "{q}");
+        assert_eq!(q["current"]["item_id"], a, "{q}");
+        let run_a = q["current"]["run_id"].as_str().expect("run id").to_string();
+        assert_eq!(queued(&api), [b, c]);
+
+        // Reorder and remove while it waits.
+        let v = api.expect(
+            200,
+            &format!("/api/queue/{c}/move"),
+            Some(json!({"position": 0})),
+        );
+        assert_eq!(v["items"][0]["item_id"], c, "{v}");
+        api.expect(
+            422,
+            &format!("/api/queue/{c}/move"),
+            Some(json!({"position": 2})),
+        );
+        api.expect(404, "/api/queue/999/move", Some(json!({"position": 0})));
+        let (s, v) = api.delete(&format!("/api/queue/{b}"));
+        assert_eq!(s, 200, "{v}");
+        assert_eq!(v["item_id"], b);
+        assert_eq!(api.delete(&format!("/api/queue/{b}")).0, 404);
+        assert_eq!(api.delete("/api/queue/x").0, 400);
+        assert_eq!(queued(&api), [c]);
+
+        // A ends; C follows by itself and ends; the queue is empty.
+        api.expect(
+            200,
+            &format!("/api/runs/{run_a}/prompt"),
+            Some(json!({"answer": "continue"})),
+        );
+        common::eventually(60, "A and C done", || {
+            queue(&api)["history"].as_array().map_or(0, Vec::len) == 2
+        });
+        let q = queue(&api);
+        let history = q["history"].as_array().expect("history");
+        assert_eq!(history[0]["item_id"], a);
+        assert_eq!(history[1]["item_id"], c);
+        assert!(history.iter().all(|h| h["status"] == "done"), "{q}");
+        assert_eq!(q["current"], Value::Null);
+        assert_eq!(queued(&api), Vec::<u64>::new());
+        let run_c = history[1]["run_id"].as_str().expect("run id");
+        assert_eq!(api.get(&format!("/api/runs/{run_c}")).1["status"], "done");
+
+        // An e-stop during a queued run pauses the queue: the next one stays queued.
+        let e = submit(&api, "prompted");
+        wait_prompt(&api, 0);
+        let f = submit(&api, "quick");
+        api.expect(200, "/api/estop", None);
+        common::eventually(30, "the queue paused with E's run ended", || {
+            let q = queue(&api);
+            q["running"] == false && q["current"].is_null()
+        });
+        let q = queue(&api);
+        assert!(
+            q["paused_because"]
+                .as_str()
+                .expect("why")
+                .contains("e-stop"),
+            "{q}"
+        );
+        let last = q["history"].as_array().and_then(|h| h.last()).cloned();
+        let last = last.expect("E in the history");
+        assert_eq!(last["item_id"], e);
+        assert_eq!(last["status"], "aborted");
+        assert_eq!(queued(&api), [f]);
+        // Starting while latched is refused; after the reset the queue stays paused…
+        api.expect(409, "/api/queue/start", None);
+        api.expect(200, "/api/estop/reset", None);
+        assert_eq!(queue(&api)["running"], false);
+        assert_eq!(queued(&api), [f]);
+        assert_eq!(api.get("/api/status").1["run"], Value::Null);
+        // …until it is started: F runs.
+        api.expect(200, "/api/queue/start", None);
+        common::eventually(60, "F done", || {
+            queue(&api)["history"]
+                .as_array()
+                .and_then(|h| h.last())
+                .is_some_and(|h| h["item_id"] == f && h["status"] == "done")
+        });
+        assert_eq!(queue(&api)["running"], true);
+
+        // Stopping holds the next run back.
+        api.expect(200, "/api/queue/stop", None);
+        let g = submit(&api, "quick");
+        assert_eq!(queued(&api), [g]);
+        assert_eq!(api.get("/api/status").1["run"], Value::Null);
+    })
+    .await;
+    d.shutdown().await;
+}

@@ -364,6 +364,8 @@ impl Ids {
             "lamps" => self.lamp.clone(),
             "cameras" => self.camera.clone(),
             "scripts" => "quickstart".into(),
+            // Queue items are numbers; none is queued.
+            "queue" => "42".into(),
             _ => "no-such-id-42".into(),
         }
     }

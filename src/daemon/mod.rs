@@ -18,6 +18,7 @@ pub mod image_convert;
 pub mod jog_ws;
 pub mod manual;
 pub mod operator;
+pub mod queue;
 pub mod run_start;
 pub mod runs;
 pub mod scripts;
@@ -191,9 +192,11 @@ pub async fn start(opts: ServeOptions) -> Result<RunningDaemon, DaemonError> {
         metrics: metrics_handle(),
         manual: manual::ManualLocks::default(),
         started: std::time::Instant::now(),
+        queue: queue::RunQueue::default(),
     };
     let state = AppState(Arc::new(daemon));
     device_state::spawn_device_watch(state.clone());
+    queue::spawn_worker(state.clone());
     let listener = tokio::net::TcpListener::bind(opts.listen)
         .await
         .map_err(|e| DaemonError::Listen {

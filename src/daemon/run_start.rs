@@ -22,8 +22,8 @@ use crate::script::ScriptSource;
 use crate::session::{self, Prepared, SessionError};
 use crate::storage::{RunStatus, RunStore, StorageError};
 
-/// `POST /api/runs`.
-#[derive(Debug, Clone, Deserialize, ToSchema)]
+/// `POST /api/runs` (and `POST /api/queue`).
+#[derive(Debug, Clone, Deserialize, Serialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct StartRun {
     /// Script name (`quickstart` or `quickstart.rhai`).
@@ -178,7 +178,14 @@ fn launch_new(
 
 /// Starts a script of the library.
 pub async fn start_script(app: &AppState, req: StartRun) -> Result<Started, ApiError> {
-    refuse_if_latched(app)?;
+    start_script_run(app, req).await.map(|(_, s)| s)
+}
+
+/// The script and `--set` overrides of a start request, checked (seed, script name, values).
+pub fn checked_request(
+    app: &AppState,
+    req: &StartRun,
+) -> Result<(ScriptSource, Vec<(String, String)>), ApiError> {
     if let Some(seed) = req.seed
         && seed != app.seed
     {
@@ -190,10 +197,20 @@ pub async fn start_script(app: &AppState, req: StartRun) -> Result<Started, ApiE
     }
     let (_, source) = Library::of(app).read(&req.script)?;
     let set = scripts::overrides(req.set.as_ref())?;
+    Ok((source, set))
+}
+
+/// Starts a script of the library; also the run, to follow it to its end (the run queue).
+pub async fn start_script_run(
+    app: &AppState,
+    req: StartRun,
+) -> Result<(Arc<ActiveRun>, Started), ApiError> {
+    refuse_if_latched(app)?;
+    let (source, set) = checked_request(app, &req)?;
     let reservation = app.runs.reserve(app)?;
     reservation.settle().await?;
     let (prepared, store) = prepare_run(app, source, set).await?;
-    launch_new(app, reservation, prepared, store).map(|(_, s)| s)
+    launch_new(app, reservation, prepared, store)
 }
 
 /// The directory of a stored run: 400 for a bad id, 404 if there is none.

@@ -3,6 +3,7 @@
 
 mod devices;
 mod frames;
+mod queue;
 mod runs;
 mod scripts;
 mod status;
@@ -112,4 +113,5 @@ pub fn routes() -> OpenApiRouter<AppState> {
         .merge(scripts::routes())
         .merge(runs::routes())
         .merge(frames::routes())
+        .merge(queue::routes())
 }
