@@ -294,7 +294,13 @@ pub fn serve(opts: ServeOptions) -> Result<(), DaemonError> {
             "stagehand daemon on rig `{}`",
             daemon.state.rig_source.spec.rig.name
         );
-        eprintln!("  dashboard:  http://{addr}/");
+        eprintln!("  dashboard:  {}", dashboard_url(addr));
+        if addr.ip().is_unspecified() {
+            eprintln!(
+                "              (listening on every interface, port {})",
+                addr.port()
+            );
+        }
         eprintln!("  API:        http://{addr}/api/  (OpenAPI: /openapi.json, Swagger UI: /docs/)");
         eprintln!(
             "  tokens:     {}{}",
@@ -312,6 +318,21 @@ pub fn serve(opts: ServeOptions) -> Result<(), DaemonError> {
     })
 }
 
+/// The dashboard's URL for the startup banner: `http://ADDR/`, on loopback when the daemon
+/// listens on every interface (`0.0.0.0` is not an address a browser can open).
+pub fn dashboard_url(addr: SocketAddr) -> String {
+    let mut addr = addr;
+    if addr.ip().is_unspecified() {
+        let loopback: std::net::IpAddr = if addr.is_ipv4() {
+            std::net::Ipv4Addr::LOCALHOST.into()
+        } else {
+            std::net::Ipv6Addr::LOCALHOST.into()
+        };
+        addr.set_ip(loopback);
+    }
+    format!("http://{addr}/")
+}
+
 async fn shutdown_signal() {
     let term = async {
         match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
@@ -324,5 +345,19 @@ async fn shutdown_signal() {
     tokio::select! {
         _ = tokio::signal::ctrl_c() => {}
         _ = term => {}
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_banner_names_a_dashboard_url_a_browser_can_open() {
+        let url = |a: &str| dashboard_url(a.parse().expect("address"));
+        assert_eq!(url("127.0.0.1:8080"), "http://127.0.0.1:8080/");
+        assert_eq!(url("192.168.1.20:80"), "http://192.168.1.20:80/");
+        assert_eq!(url("0.0.0.0:8080"), "http://127.0.0.1:8080/");
+        assert_eq!(url("[::]:9000"), "http://[::1]:9000/");
     }
 }
