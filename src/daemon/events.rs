@@ -50,12 +50,24 @@ impl Default for EventHub {
 }
 
 impl EventHub {
-    /// A hub with no event yet.
+    /// A hub with no event yet. Sequence numbers continue from the wall clock in
+    /// microseconds, so the ids of a restarted daemon are above those of the one before: a
+    /// client's `Last-Event-ID` from before the restart asks for a resync, and a dashboard
+    /// that skips ids it has seen does not skip the new daemon's events.
     pub fn new() -> Self {
+        let start_us = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| u64::try_from(d.as_micros()).unwrap_or(0))
+            .unwrap_or(0);
+        Self::starting_after(start_us)
+    }
+
+    /// A hub whose first event has sequence number `seq + 1`.
+    fn starting_after(seq: u64) -> Self {
         Self {
             tx: broadcast::channel(CHANNEL_CAPACITY).0,
             closing: tokio::sync::watch::channel(false).0,
-            seq: AtomicU64::new(0),
+            seq: AtomicU64::new(seq),
             recent: Mutex::new(VecDeque::with_capacity(RECENT)),
         }
     }
@@ -127,5 +139,56 @@ impl EventHub {
     /// Number of live subscribers (SSE clients and internal listeners).
     pub fn subscribers(&self) -> usize {
         self.tx.receiver_count()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn seqs(events: &[HubEvent]) -> Vec<u64> {
+        events.iter().map(|e| e.seq).collect()
+    }
+
+    #[test]
+    fn a_reconnecting_client_gets_exactly_the_events_it_missed_while_the_ring_holds_them() {
+        let hub = EventHub::starting_after(1000);
+        for i in 0..5 {
+            hub.publish("device", i);
+        }
+        let (_, missed) = hub.subscribe_after(1002);
+        assert_eq!(missed.map(|m| seqs(&m)), Some(vec![1003, 1004, 1005]));
+        let (_, missed) = hub.subscribe_after(1005);
+        assert_eq!(missed.map(|m| seqs(&m)), Some(vec![]));
+        // From before this hub (a daemon restarted) or from the future: resync.
+        assert!(hub.subscribe_after(10).1.is_none());
+        assert!(hub.subscribe_after(1006).1.is_none());
+        // Events that left the ring cannot be replayed.
+        for i in 0..RECENT {
+            hub.publish("device", i);
+        }
+        assert!(hub.subscribe_after(1002).1.is_none());
+        let oldest = hub.recent()[0].seq;
+        let (_, missed) = hub.subscribe_after(oldest - 1);
+        assert_eq!(missed.map(|m| m.len()), Some(RECENT));
+    }
+
+    #[test]
+    fn events_after_the_subscription_come_through_the_receiver_not_twice() {
+        let hub = EventHub::starting_after(0);
+        hub.publish("device", 1);
+        let (mut rx, missed) = hub.subscribe_after(0);
+        assert_eq!(missed.map(|m| seqs(&m)), Some(vec![1]));
+        hub.publish("device", 2);
+        assert_eq!(rx.try_recv().map(|e| e.seq).ok(), Some(2));
+        assert!(rx.try_recv().is_err());
+    }
+
+    #[test]
+    fn a_new_hub_numbers_its_events_after_the_clock() {
+        let hub = EventHub::new();
+        hub.publish("device", 1);
+        // 2020-01-01 in microseconds: far above any count of events a daemon publishes.
+        assert!(hub.recent()[0].seq > 1_577_836_800_000_000);
     }
 }
