@@ -661,6 +661,33 @@ async fn queued_runs_start_in_order_and_can_be_reordered_removed_and_paused() {
         let g = submit(&api, "quick");
         assert_eq!(queued(&api), [g]);
         assert_eq!(api.get("/api/status").1["run"], Value::Null);
+
+        // Every change went out as a `queue` event with the queue after it.
+        let (_, events) = api.get("/api/events/recent");
+        let actions: Vec<&str> = events
+            .as_array()
+            .expect("events")
+            .iter()
+            .filter(|e| e["kind"] == "queue")
+            .filter_map(|e| e["data"]["action"].as_str())
+            .collect();
+        for want in [
+            "submitted",
+            "moved",
+            "removed",
+            "run_started",
+            "run_ended",
+            "paused",
+        ] {
+            assert!(actions.contains(&want), "{want} in {actions:?}");
+        }
+        assert_eq!(actions.last(), Some(&"submitted"), "{actions:?}");
+        let last = events
+            .as_array()
+            .and_then(|e| e.iter().rev().find(|e| e["kind"] == "queue"))
+            .cloned()
+            .expect("a queue event");
+        assert_eq!(last["data"]["queue"]["items"][0]["item_id"], g, "{last}");
     })
     .await;
     d.shutdown().await;

@@ -25,7 +25,7 @@ pub const RECENT: usize = 200;
 pub struct HubEvent {
     /// Increasing number, also the SSE `id`.
     pub seq: u64,
-    /// `run`, `device`, `frame`, `prompt`, `warning`, `estop` (the SSE event name).
+    /// `run`, `device`, `frame`, `prompt`, `warning`, `estop`, `queue` (the SSE event name).
     pub kind: String,
     /// Wall-clock Unix time in seconds.
     pub unix_s: f64,

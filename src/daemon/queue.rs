@@ -217,6 +217,16 @@ impl RunQueue {
     }
 }
 
+/// Publishes a `queue` event: what changed (`action`: `submitted`, `removed`, `moved`,
+/// `started`, `stopped`, `paused`, `run_started`, `run_ended`), a `message` for the event
+/// log, and the whole queue after the change.
+pub fn publish(app: &AppState, action: &str, message: String) {
+    app.hub.publish(
+        "queue",
+        serde_json::json!({"action": action, "message": message, "queue": app.queue.state()}),
+    );
+}
+
 /// Starts the queue's worker on the current runtime; it ends when the daemon shuts down.
 pub fn spawn_worker(app: AppState) {
     tokio::spawn(async move {
@@ -235,7 +245,14 @@ async fn worker(app: &AppState) {
         tokio::pin!(wake);
         wake.as_mut().enable();
         if app.estop.is_latched() {
-            app.queue.pause("the e-stop was pressed");
+            if app.queue.state().running {
+                app.queue.pause("the e-stop was pressed");
+                publish(
+                    app,
+                    "paused",
+                    "the queue paused: the e-stop was pressed".into(),
+                );
+            }
             let reset = async { latch.wait_for(|l| !*l).await.is_ok() }.await;
             if !reset {
                 return;
@@ -286,6 +303,7 @@ async fn run_item(app: &AppState, mut item: QueueItem) {
             item.error = Some(e.error);
             app.queue.put_back(item);
             app.queue.pause(why.clone());
+            publish(app, "paused", format!("the queue paused: {why}"));
             app.hub.publish(
                 "warning",
                 serde_json::json!({"message": why, "queue": true}),
@@ -301,21 +319,36 @@ async fn run_item(app: &AppState, mut item: QueueItem) {
         message: None,
     };
     app.queue.set_current(Some(record.clone()));
+    publish(
+        app,
+        "run_started",
+        format!(
+            "the queue started item {} ({}) as run {}",
+            record.item_id, record.script, record.run_id
+        ),
+    );
     let outcome = active.wait_finished().await;
-    if outcome.status != "done" {
+    let ended = format!(
+        "run {} (queued item {}) ended {}",
+        record.run_id, record.item_id, outcome.status
+    );
+    let paused = outcome.status != "done";
+    if paused {
         let cause = if app.estop.is_latched() {
             "the e-stop was pressed: "
         } else {
             ""
         };
-        app.queue.pause(format!(
-            "{cause}run {} (queued item {}) ended {}",
-            record.run_id, record.item_id, outcome.status
-        ));
+        app.queue.pause(format!("{cause}{ended}"));
     }
     record.status = outcome.status;
     record.message = outcome.message;
     app.queue.finished(record);
+    if paused {
+        publish(app, "paused", format!("the queue paused: {ended}"));
+    } else {
+        publish(app, "run_ended", ended);
+    }
 }
 
 /// Checks a request before it is queued: the script exists, the values are of the right kind

@@ -35,7 +35,10 @@ async fn submit(
     ApiJson(req): ApiJson<StartRun>,
 ) -> ApiResult<(StatusCode, ApiJson<QueueItem>)> {
     queue::check_submission(&app, &req).await?;
-    Ok((StatusCode::CREATED, ApiJson(app.queue.submit(req))))
+    let item = app.queue.submit(req);
+    let message = format!("queued item {} ({})", item.item_id, item.request.script);
+    queue::publish(&app, "submitted", message);
+    Ok((StatusCode::CREATED, ApiJson(item)))
 }
 
 /// Removes a queued run (one not started yet).
@@ -50,7 +53,13 @@ async fn remove(
     State(app): State<AppState>,
     ApiPath(item): ApiPath<u64>,
 ) -> ApiResult<ApiJson<QueueItem>> {
-    app.queue.remove(item).map(ApiJson)
+    let removed = app.queue.remove(item)?;
+    let message = format!(
+        "removed item {item} ({}) from the queue",
+        removed.request.script
+    );
+    queue::publish(&app, "removed", message);
+    Ok(ApiJson(removed))
 }
 
 /// `POST /api/queue/{item}/move`.
@@ -77,6 +86,8 @@ async fn move_item(
     ApiJson(req): ApiJson<MoveItem>,
 ) -> ApiResult<ApiJson<QueueState>> {
     app.queue.move_to(item, req.position)?;
+    let message = format!("moved queued item {item} to position {}", req.position);
+    queue::publish(&app, "moved", message);
     Ok(ApiJson(app.queue.state()))
 }
 
@@ -94,6 +105,7 @@ async fn start(State(app): State<AppState>) -> ApiResult<ApiJson<QueueState>> {
         );
     }
     app.queue.start();
+    queue::publish(&app, "started", "the queue was started".into());
     Ok(ApiJson(app.queue.state()))
 }
 
@@ -106,6 +118,7 @@ async fn start(State(app): State<AppState>) -> ApiResult<ApiJson<QueueState>> {
 async fn stop(State(app): State<AppState>) -> ApiJson<QueueState> {
     app.queue
         .pause("stopped over the API (`POST /api/queue/stop`)");
+    queue::publish(&app, "stopped", "the queue was stopped".into());
     ApiJson(app.queue.state())
 }
 

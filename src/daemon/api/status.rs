@@ -77,7 +77,7 @@ async fn recent_events(State(app): State<AppState>) -> ApiJson<Vec<HubEvent>> {
     ApiJson(app.hub.recent())
 }
 
-/// Server-Sent Events: `device`, `run`, `frame`, `prompt`, `warning`, `estop`, each with an
+/// Server-Sent Events: `device`, `run`, `frame`, `prompt`, `warning`, `estop`, `queue`, each with an
 /// increasing `id`. A new stream starts with a `resync` event carrying the whole status. A
 /// client reconnecting with `Last-Event-ID` (browsers' `EventSource` does) is replayed the
 /// events it missed instead, while the daemon still holds them (the last 200), else it gets a
