@@ -77,12 +77,13 @@ async fn recent_events(State(app): State<AppState>) -> ApiJson<Vec<HubEvent>> {
     ApiJson(app.hub.recent())
 }
 
-/// Server-Sent Events: `device`, `run`, `frame`, `prompt`, `warning`, `estop`, `queue`, each with an
-/// increasing `id`. A new stream starts with a `resync` event carrying the whole status. A
-/// client reconnecting with `Last-Event-ID` (browsers' `EventSource` does) is replayed the
-/// events it missed instead, while the daemon still holds them (the last 200), else it gets a
-/// `resync`. A client that falls behind gets a `resync` instead of the events it missed. When
-/// the daemon stops, a run it aborts sends its final `run` event before the stream ends.
+/// Server-Sent Events: `device`, `run`, `frame`, `prompt`, `warning`, `estop`, `queue`, each
+/// with an increasing `id`. A new stream starts with a `resync` event carrying the whole
+/// status. A client reconnecting with `Last-Event-ID` (browsers' `EventSource` does) is
+/// replayed the events it missed instead, while the daemon still holds them (the last 200),
+/// else it gets a `resync`. A client that falls behind gets a `resync` instead of the events
+/// it missed. When the daemon stops, a run it aborts sends its final `run` event before the
+/// stream ends.
 #[utoipa::path(get, path = "/api/events", tag = "status",
     params(("Last-Event-ID" = Option<u64>, Header, description = "The `id` of the last event received: the events after it are replayed")),
     responses((status = 200, description = "text/event-stream of events", content_type = "text/event-stream")))]
