@@ -98,7 +98,7 @@ impl ApiError {
     /// A device failed while doing what was asked (not the client's fault, but not a bug of
     /// the daemon either): 502, naming the device.
     pub fn device(e: &stagehand_devices::DeviceError) -> Self {
-        Self::new(StatusCode::BAD_GATEWAY, e.to_string())
+        Self::new(StatusCode::BAD_GATEWAY, for_daemon(&e.to_string()))
             .hint("check the device named above; `GET /api/status` shows the rig's state")
     }
 
@@ -209,6 +209,15 @@ impl<T: Serialize> IntoResponse for ApiJson<T> {
     }
 }
 
+/// A device's message as the daemon answers it: the `stagehand devices` it may suggest is a
+/// command for the daemon's host (it lists and checks the ports), not for the API client.
+pub fn for_daemon(message: &str) -> String {
+    message.replace(
+        "`stagehand devices`",
+        "`stagehand devices` on the daemon's host (`GET /api/status` shows the rig)",
+    )
+}
+
 /// `axum::extract::Path` with an [`ApiError`] rejection.
 #[derive(Debug, axum::extract::FromRequestParts)]
 #[from_request(via(axum::extract::Path), rejection(ApiError))]
@@ -267,4 +276,45 @@ pub async fn json_errors(req: axum::extract::Request, next: axum::middleware::Ne
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Debug, serde::Deserialize)]
+    struct Arm {
+        #[serde(default)]
+        confirm: bool,
+    }
+
+    #[test]
+    fn only_an_object_is_read_as_a_struct() {
+        for body in ["[true]", "[]", "true", "1", "\"x\"", "null"] {
+            let e = object_body::<Arm>(body.as_bytes()).expect_err(body);
+            assert_eq!(e.status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+            assert!(e.error.contains("JSON object"), "{body}: {}", e.error);
+        }
+        assert!(object_body::<Arm>(br#"{"confirm": true}"#).is_ok_and(|a| a.confirm));
+        assert!(object_body::<Arm>(b"{}").is_ok_and(|a| !a.confirm));
+        let e = object_body::<Arm>(b"{").expect_err("malformed");
+        assert_eq!(e.status, StatusCode::BAD_REQUEST);
+        let e = object_body::<Arm>(br#"{"confirm": "yes"}"#).expect_err("wrong type");
+        assert_eq!(e.status, StatusCode::UNPROCESSABLE_ENTITY);
+    }
+
+    #[test]
+    fn device_messages_name_the_host_for_cli_commands() {
+        let m = for_daemon("cannot open port (see `stagehand devices`)");
+        assert!(m.contains("on the daemon's host"), "{m}");
+        assert!(m.contains("GET /api/status"), "{m}");
+        let run = crate::daemon::runs::for_api(
+            "aborted before step 3; resumable with `stagehand resume`",
+            "r1",
+        );
+        assert_eq!(
+            run,
+            "aborted before step 3; resumable with `POST /api/runs/r1/resume` (or Resume on the dashboard)"
+        );
+    }
 }

@@ -587,7 +587,7 @@ fn with_run_id(event: &impl Serialize, run_id: &str) -> serde_json::Value {
 /// resume the run from there instead.
 pub fn for_api(message: &str, run_id: &str) -> String {
     let endpoint = format!("`POST /api/runs/{run_id}/resume`");
-    message
+    super::error::for_daemon(message)
         .replace(
             "run `stagehand resume`",
             &format!("resume it ({endpoint} or Resume on the dashboard)"),
