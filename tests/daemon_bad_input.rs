@@ -285,6 +285,8 @@ struct Op {
     json_body: Option<Value>,
     /// The operation takes a text body.
     text_body: bool,
+    /// The operation needs no token (`security: [{}]`, e.g. `GET /api/health`).
+    public: bool,
 }
 
 /// Resolves a `$ref` (one level at a time, recursively) in the document.
@@ -340,6 +342,7 @@ fn operations(doc: &Value) -> Vec<Op> {
                 query: of("query"),
                 json_body,
                 text_body,
+                public: op.get("security") == Some(&serde_json::json!([{}])),
             });
         }
     }
@@ -361,6 +364,8 @@ impl Ids {
             "lamps" => self.lamp.clone(),
             "cameras" => self.camera.clone(),
             "scripts" => "quickstart".into(),
+            // Queue items are numbers; none is queued.
+            "queue" => "42".into(),
             _ => "no-such-id-42".into(),
         }
     }
@@ -505,6 +510,11 @@ fn cases_for(doc: &Value, ops: &[Op], ids: &Ids, op_token: &str, ro_token: &str)
         let valid_path = fill(&op.path, |_, seg| ids.valid(seg));
         let reads = op.method == "GET";
         // Auth: no token, a wrong token, the read-only token on a mutating route.
+        let auth_expect = if op.public {
+            Expect::Exactly(200)
+        } else {
+            Expect::Exactly(401)
+        };
         cases.push(case(
             "no token",
             op,
@@ -512,7 +522,7 @@ fn cases_for(doc: &Value, ops: &[Op], ids: &Ids, op_token: &str, ro_token: &str)
             None,
             None,
             None,
-            Expect::Exactly(401),
+            auth_expect,
         ));
         cases.push(case(
             "wrong token",
@@ -521,7 +531,7 @@ fn cases_for(doc: &Value, ops: &[Op], ids: &Ids, op_token: &str, ro_token: &str)
             Some(&"0".repeat(64)),
             None,
             None,
-            Expect::Exactly(401),
+            auth_expect,
         ));
         cases.push(case(
             "truncated operator token",
@@ -530,7 +540,7 @@ fn cases_for(doc: &Value, ops: &[Op], ids: &Ids, op_token: &str, ro_token: &str)
             Some(&op_token[..op_token.len() - 1]),
             None,
             None,
-            Expect::Exactly(401),
+            auth_expect,
         ));
         if op.method == "POST" && op.path == stagehand::daemon::auth::ESTOP_PATH {
             // Anyone who may watch the rig may stop it.

@@ -442,6 +442,26 @@ async fn frames_are_queried_by_metadata_and_paged() {
                 "SELECT count(*) FROM frames WHERE block = 'hdr' AND kind = 'raw'"
             )
         );
+        // The block filter is a prefix of whole block names: `lamps` finds the frames of
+        // `lamps/position 0`, `lamps/position 1`…; `lamp` (half a name) finds none.
+        let nested = sql_i64(d, "SELECT count(*) FROM frames WHERE block LIKE 'lamps/%'");
+        assert!(nested > 0, "quickstart captures inside `lamps/position N`");
+        let lamps = api.get(&format!("{base}?block=lamps&limit=1000"));
+        assert_eq!(lamps.json()["total"], nested, "{}", lamps.text());
+        assert!(
+            frames_of(&lamps)
+                .iter()
+                .all(|f| f["block"].as_str().is_some_and(|b| b.starts_with("lamps/")))
+        );
+        let one = api.get(&format!("{base}?block={}", url_encode("lamps/position 1")));
+        assert_eq!(
+            one.json()["total"],
+            sql_i64(
+                d,
+                "SELECT count(*) FROM frames WHERE block = 'lamps/position 1'"
+            )
+        );
+        assert_eq!(api.get(&format!("{base}?block=lamp")).json()["total"], 0);
         let label = f["label"].as_str().expect("label").to_string();
         let by_label = api.get(&format!("{base}?label={}", url_encode(&label)));
         assert_eq!(by_label.status, 200, "{}", by_label.text());
@@ -733,9 +753,13 @@ async fn latest_frame_of_each_camera() {
                 assert_eq!(api.get(url).status, 200);
             }
         }
+        // An unknown camera is no such camera (naming the rig's), not one without frames.
         let a = api.get("/api/cameras/no-such-camera/latest");
         assert_eq!(a.status, 404);
-        assert!(a.json()["error"].is_string());
+        let error = a.json()["error"].as_str().unwrap_or_default().to_string();
+        assert!(error.contains("no such camera"), "{error}");
+        assert!(error.contains("cam1") && error.contains("cam8"), "{error}");
+        assert!(!error.contains("no frame yet"), "{error}");
     })
     .await;
 }

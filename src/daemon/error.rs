@@ -3,9 +3,11 @@
 
 use axum::Json;
 use axum::extract::rejection::{JsonRejection, PathRejection, QueryRejection};
+use axum::extract::{FromRequest, Request};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use serde::Serialize;
+use serde::de::DeserializeOwned;
 use utoipa::ToSchema;
 
 /// The JSON body of every error response.
@@ -16,26 +18,54 @@ pub struct ErrorBody {
     /// What to do about it, when there is something to do.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub hint: Option<String>,
+    /// Every problem found when a script or its parameters failed validation (422), each at
+    /// its line and column, so a client can mark them without parsing `error`.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub violations: Vec<ViolationItem>,
+}
+
+/// One validation problem of a script or its parameters.
+#[derive(Debug, Clone, PartialEq, Serialize, ToSchema)]
+pub struct ViolationItem {
+    /// 1-based script line; `null` when the problem has no place in the script (a parameter).
+    pub line: Option<u32>,
+    /// 1-based column on that line; `null` like `line`.
+    pub col: Option<u32>,
+    /// What is wrong there.
+    pub message: String,
 }
 
 /// An error answered to an API client.
 #[derive(Debug, Clone)]
 pub struct ApiError {
+    /// The HTTP status.
     pub status: StatusCode,
+    /// What went wrong (the body's `error`).
     pub error: String,
+    /// What to do about it (the body's `hint`).
     pub hint: Option<String>,
+    /// Validation problems (the body's `violations`).
+    pub violations: Vec<ViolationItem>,
 }
 
 /// Result of a handler.
 pub type ApiResult<T> = Result<T, ApiError>;
 
 impl ApiError {
+    /// An error with this status and message.
     pub fn new(status: StatusCode, error: impl Into<String>) -> Self {
         Self {
             status,
             error: error.into(),
             hint: None,
+            violations: Vec::new(),
         }
+    }
+
+    /// Adds the validation problems behind a 422.
+    pub fn violations(mut self, violations: Vec<ViolationItem>) -> Self {
+        self.violations = violations;
+        self
     }
 
     /// Adds what the client should do.
@@ -44,10 +74,12 @@ impl ApiError {
         self
     }
 
+    /// 400: the request itself is malformed.
     pub fn bad_request(error: impl Into<String>) -> Self {
         Self::new(StatusCode::BAD_REQUEST, error)
     }
 
+    /// 404: no such thing.
     pub fn not_found(error: impl Into<String>) -> Self {
         Self::new(StatusCode::NOT_FOUND, error)
     }
@@ -58,6 +90,7 @@ impl ApiError {
         Self::new(StatusCode::CONFLICT, error)
     }
 
+    /// 422: well-formed, but the values are not acceptable.
     pub fn unprocessable(error: impl Into<String>) -> Self {
         Self::new(StatusCode::UNPROCESSABLE_ENTITY, error)
     }
@@ -65,10 +98,11 @@ impl ApiError {
     /// A device failed while doing what was asked (not the client's fault, but not a bug of
     /// the daemon either): 502, naming the device.
     pub fn device(e: &stagehand_devices::DeviceError) -> Self {
-        Self::new(StatusCode::BAD_GATEWAY, e.to_string())
+        Self::new(StatusCode::BAD_GATEWAY, for_daemon(&e.to_string()))
             .hint("check the device named above; `GET /api/status` shows the rig's state")
     }
 
+    /// 500: the daemon's own failure.
     pub fn internal(error: impl Into<String>) -> Self {
         Self::new(StatusCode::INTERNAL_SERVER_ERROR, error)
     }
@@ -85,6 +119,7 @@ impl IntoResponse for ApiError {
         let body = ErrorBody {
             error: self.error,
             hint: self.hint,
+            violations: self.violations,
         };
         (self.status, Json(body)).into_response()
     }
@@ -119,15 +154,68 @@ impl From<QueryRejection> for ApiError {
     }
 }
 
-/// `axum::Json` whose rejection is an [`ApiError`] (JSON message instead of plain text).
-#[derive(Debug, Clone, Copy, Default, axum::extract::FromRequest)]
-#[from_request(via(axum::Json), rejection(ApiError))]
+/// A JSON request body that must be a JSON object, or a JSON response. As an extractor it
+/// rejects with an [`ApiError`] (a JSON message instead of plain text), and it refuses any
+/// body that is not an object: serde reads a struct from a sequence too, so without this
+/// `[true]` would pass for `{"confirm": true}`.
+#[derive(Debug, Clone, Copy, Default)]
 pub struct ApiJson<T>(pub T);
+
+impl<T: DeserializeOwned, S: Send + Sync> FromRequest<S> for ApiJson<T> {
+    type Rejection = ApiError;
+
+    async fn from_request(req: Request, state: &S) -> Result<Self, ApiError> {
+        // axum checks the content type, the size limit and the syntax.
+        let Json(value) = Json::<serde_json::Value>::from_request(req, state).await?;
+        object_value(value).map(ApiJson)
+    }
+}
+
+/// Reads `T` from a request body that must be a JSON object: 422 for any other JSON value
+/// (an array, a number…) and for an object of the wrong shape.
+pub fn object_value<T: DeserializeOwned>(value: serde_json::Value) -> ApiResult<T> {
+    let hint = "send a JSON object (`{...}`) as /openapi.json describes";
+    if !value.is_object() {
+        let kind = match value {
+            serde_json::Value::Array(_) => "an array",
+            serde_json::Value::String(_) => "a string",
+            serde_json::Value::Number(_) => "a number",
+            serde_json::Value::Bool(_) => "a boolean",
+            serde_json::Value::Null => "null",
+            serde_json::Value::Object(_) => "an object",
+        };
+        return Err(ApiError::unprocessable(format!(
+            "request body: expected a JSON object, got {kind}"
+        ))
+        .hint(hint));
+    }
+    serde_json::from_value(value)
+        .map_err(|e| ApiError::unprocessable(format!("request body: {e}")).hint(hint))
+}
+
+/// Reads `T` from raw body bytes that must hold a JSON object (for handlers that read the
+/// body themselves): 400 for malformed JSON, 422 as [`object_value`].
+pub fn object_body<T: DeserializeOwned>(bytes: &[u8]) -> ApiResult<T> {
+    let value: serde_json::Value = serde_json::from_slice(bytes).map_err(|e| {
+        ApiError::bad_request(format!("request body: {e}"))
+            .hint("send a JSON object as /openapi.json describes")
+    })?;
+    object_value(value)
+}
 
 impl<T: Serialize> IntoResponse for ApiJson<T> {
     fn into_response(self) -> Response {
         Json(self.0).into_response()
     }
+}
+
+/// A device's message as the daemon answers it: the `stagehand devices` it may suggest is a
+/// command for the daemon's host (it lists and checks the ports), not for the API client.
+pub fn for_daemon(message: &str) -> String {
+    message.replace(
+        "`stagehand devices`",
+        "`stagehand devices` on the daemon's host (`GET /api/status` shows the rig)",
+    )
 }
 
 /// `axum::extract::Path` with an [`ApiError`] rejection.
@@ -188,4 +276,45 @@ pub async fn json_errors(req: axum::extract::Request, next: axum::middleware::Ne
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Debug, serde::Deserialize)]
+    struct Arm {
+        #[serde(default)]
+        confirm: bool,
+    }
+
+    #[test]
+    fn only_an_object_is_read_as_a_struct() {
+        for body in ["[true]", "[]", "true", "1", "\"x\"", "null"] {
+            let e = object_body::<Arm>(body.as_bytes()).expect_err(body);
+            assert_eq!(e.status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+            assert!(e.error.contains("JSON object"), "{body}: {}", e.error);
+        }
+        assert!(object_body::<Arm>(br#"{"confirm": true}"#).is_ok_and(|a| a.confirm));
+        assert!(object_body::<Arm>(b"{}").is_ok_and(|a| !a.confirm));
+        let e = object_body::<Arm>(b"{").expect_err("malformed");
+        assert_eq!(e.status, StatusCode::BAD_REQUEST);
+        let e = object_body::<Arm>(br#"{"confirm": "yes"}"#).expect_err("wrong type");
+        assert_eq!(e.status, StatusCode::UNPROCESSABLE_ENTITY);
+    }
+
+    #[test]
+    fn device_messages_name_the_host_for_cli_commands() {
+        let m = for_daemon("cannot open port (see `stagehand devices`)");
+        assert!(m.contains("on the daemon's host"), "{m}");
+        assert!(m.contains("GET /api/status"), "{m}");
+        let run = crate::daemon::runs::for_api(
+            "aborted before step 3; resumable with `stagehand resume`",
+            "r1",
+        );
+        assert_eq!(
+            run,
+            "aborted before step 3; resumable with `POST /api/runs/r1/resume` (or Resume on the dashboard)"
+        );
+    }
 }

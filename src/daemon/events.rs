@@ -16,7 +16,8 @@ use utoipa::ToSchema;
 
 /// How many events a subscriber may fall behind before it is resynchronised.
 pub const CHANNEL_CAPACITY: usize = 1024;
-/// How many events `GET /api/events/recent` keeps.
+/// How many events `GET /api/events/recent` keeps (and a reconnecting SSE client can be
+/// replayed with `Last-Event-ID`).
 pub const RECENT: usize = 200;
 
 /// One published event.
@@ -24,7 +25,7 @@ pub const RECENT: usize = 200;
 pub struct HubEvent {
     /// Increasing number, also the SSE `id`.
     pub seq: u64,
-    /// `run`, `device`, `frame`, `prompt`, `warning`, `estop` (the SSE event name).
+    /// `run`, `device`, `frame`, `prompt`, `warning`, `estop`, `queue` (the SSE event name).
     pub kind: String,
     /// Wall-clock Unix time in seconds.
     pub unix_s: f64,
@@ -49,11 +50,24 @@ impl Default for EventHub {
 }
 
 impl EventHub {
+    /// A hub with no event yet. Sequence numbers continue from the wall clock in
+    /// microseconds, so the ids of a restarted daemon are above those of the one before: a
+    /// client's `Last-Event-ID` from before the restart asks for a resync, and a dashboard
+    /// that skips ids it has seen does not skip the new daemon's events.
     pub fn new() -> Self {
+        let start_us = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| u64::try_from(d.as_micros()).unwrap_or(0))
+            .unwrap_or(0);
+        Self::starting_after(start_us)
+    }
+
+    /// A hub whose first event has sequence number `seq + 1`.
+    fn starting_after(seq: u64) -> Self {
         Self {
             tx: broadcast::channel(CHANNEL_CAPACITY).0,
             closing: tokio::sync::watch::channel(false).0,
-            seq: AtomicU64::new(0),
+            seq: AtomicU64::new(seq),
             recent: Mutex::new(VecDeque::with_capacity(RECENT)),
         }
     }
@@ -85,6 +99,26 @@ impl EventHub {
         self.tx.subscribe()
     }
 
+    /// A receiver of every event published from now on and, when the ring still holds every
+    /// event after `after` (the SSE `Last-Event-ID` a reconnecting client sends), those
+    /// events, oldest first: together exactly the events after `after`, none twice. `None`
+    /// when some of them already left the ring (or `after` is from before a restart): the
+    /// client must resynchronise instead.
+    pub fn subscribe_after(
+        &self,
+        after: u64,
+    ) -> (broadcast::Receiver<HubEvent>, Option<Vec<HubEvent>>) {
+        // Publishing holds the ring lock while it sends: subscribing under it splits the
+        // events exactly between the ring and the receiver.
+        let recent = self.recent.lock().unwrap_or_else(|p| p.into_inner());
+        let rx = self.tx.subscribe();
+        let last = self.seq.load(Ordering::Relaxed);
+        let oldest = recent.front().map_or(last + 1, |e| e.seq);
+        let missed = (after <= last && oldest <= after + 1)
+            .then(|| recent.iter().filter(|e| e.seq > after).cloned().collect());
+        (rx, missed)
+    }
+
     /// The last [`RECENT`] events, oldest first.
     pub fn recent(&self) -> Vec<HubEvent> {
         let recent = self.recent.lock().unwrap_or_else(|p| p.into_inner());
@@ -105,5 +139,56 @@ impl EventHub {
     /// Number of live subscribers (SSE clients and internal listeners).
     pub fn subscribers(&self) -> usize {
         self.tx.receiver_count()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn seqs(events: &[HubEvent]) -> Vec<u64> {
+        events.iter().map(|e| e.seq).collect()
+    }
+
+    #[test]
+    fn a_reconnecting_client_gets_exactly_the_events_it_missed_while_the_ring_holds_them() {
+        let hub = EventHub::starting_after(1000);
+        for i in 0..5 {
+            hub.publish("device", i);
+        }
+        let (_, missed) = hub.subscribe_after(1002);
+        assert_eq!(missed.map(|m| seqs(&m)), Some(vec![1003, 1004, 1005]));
+        let (_, missed) = hub.subscribe_after(1005);
+        assert_eq!(missed.map(|m| seqs(&m)), Some(vec![]));
+        // From before this hub (a daemon restarted) or from the future: resync.
+        assert!(hub.subscribe_after(10).1.is_none());
+        assert!(hub.subscribe_after(1006).1.is_none());
+        // Events that left the ring cannot be replayed.
+        for i in 0..RECENT {
+            hub.publish("device", i);
+        }
+        assert!(hub.subscribe_after(1002).1.is_none());
+        let oldest = hub.recent()[0].seq;
+        let (_, missed) = hub.subscribe_after(oldest - 1);
+        assert_eq!(missed.map(|m| m.len()), Some(RECENT));
+    }
+
+    #[test]
+    fn events_after_the_subscription_come_through_the_receiver_not_twice() {
+        let hub = EventHub::starting_after(0);
+        hub.publish("device", 1);
+        let (mut rx, missed) = hub.subscribe_after(0);
+        assert_eq!(missed.map(|m| seqs(&m)), Some(vec![1]));
+        hub.publish("device", 2);
+        assert_eq!(rx.try_recv().map(|e| e.seq).ok(), Some(2));
+        assert!(rx.try_recv().is_err());
+    }
+
+    #[test]
+    fn a_new_hub_numbers_its_events_after_the_clock() {
+        let hub = EventHub::new();
+        hub.publish("device", 1);
+        // 2020-01-01 in microseconds: far above any count of events a daemon publishes.
+        assert!(hub.recent()[0].seq > 1_577_836_800_000_000);
     }
 }

@@ -94,6 +94,7 @@ pub struct FrameFilter {
     /// `raw` or `hdr`.
     pub kind: Option<String>,
     pub label: Option<String>,
+    /// Enclosing blocks: a prefix of whole block names (see `where_clause`).
     pub block: Option<String>,
     /// At most [`MAX_LIMIT`]; [`DEFAULT_LIMIT`] when `None`.
     pub limit: Option<u32>,
@@ -322,7 +323,14 @@ fn where_clause(filter: &FrameFilter) -> Result<(String, Vec<Value>), FrameIndex
     text("camera", &filter.camera);
     text("kind", &filter.kind);
     text("label", &filter.label);
-    text("block", &filter.block);
+    // A prefix of whole block names: `view 3` matches `view 3/light 1`, not `view 30`.
+    if let Some(block) = &filter.block {
+        params.push(Value::Text(block.trim_end_matches('/').to_string()));
+        let n = params.len();
+        clauses.push(format!(
+            "(frames.block = ?{n} OR substr(frames.block, 1, length(?{n}) + 1) = ?{n} || '/')"
+        ));
+    }
     if let Some(lamp) = &filter.lamp {
         params.push(Value::Text(lamp.clone()));
         clauses.push(format!(

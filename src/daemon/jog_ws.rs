@@ -30,7 +30,6 @@ use serde_json::json;
 use stagehand_devices::DeviceResult;
 use stagehand_devices::axis::AxisHandle;
 use stagehand_devices::motion::Trapezoid;
-use tokio::sync::MutexGuard;
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
 
@@ -112,7 +111,7 @@ pub async fn ws_jog(
 }
 
 /// One jog in progress.
-struct Jog<'a> {
+struct Jog {
     axis: AxisHandle,
     direction: f64,
     speed: f64,
@@ -122,7 +121,7 @@ struct Jog<'a> {
     profile: Trapezoid,
     started: Instant,
     /// Held for the whole jog: no other manual command meanwhile.
-    _guard: MutexGuard<'a, ()>,
+    _guard: manual::ManualGuard,
 }
 
 /// Why a jog ended.
@@ -199,7 +198,7 @@ async fn session(app: AppState, socket: WebSocket) {
 struct Session<'a> {
     app: &'a AppState,
     socket: WebSocket,
-    jog: Option<Jog<'a>>,
+    jog: Option<Jog>,
 }
 
 impl<'a> Session<'a> {
@@ -295,12 +294,12 @@ impl<'a> Session<'a> {
 }
 
 /// Checks the refusals and starts the first leg.
-fn start<'a>(
-    app: &'a AppState,
+fn start(
+    app: &AppState,
     axis_id: &str,
     direction: Option<i32>,
     speed: Option<f64>,
-) -> Result<Jog<'a>, ApiError> {
+) -> Result<Jog, ApiError> {
     let axis = app.rig.axes.get(axis_id).cloned().ok_or_else(|| {
         let known: Vec<&str> = app.rig.axes.keys().map(String::as_str).collect();
         ApiError::not_found(format!("no axis `{axis_id}`; this rig's axes: {known:?}"))
@@ -320,7 +319,7 @@ fn start<'a>(
                 .hint("1 is the axis's cruise speed; omit it for full speed"),
         );
     }
-    let guard = manual::try_lock(app)?;
+    let guard = manual::try_lock(app, &[manual::axis_key(axis_id)])?;
     if !axis.status().homed {
         return Err(ApiError::conflict(format!("{axis_id}: not homed"))
             .hint(format!("home it first: `POST /api/axes/{axis_id}/home`")));
@@ -381,7 +380,7 @@ fn spawn_leg(
 
 /// The current leg ended: start the next crawl step (`Ok(true)`), or report the limit reached
 /// (`Ok(false)`) or the failure.
-async fn next_leg(app: &AppState, j: &mut Jog<'_>) -> Result<bool, String> {
+async fn next_leg(app: &AppState, j: &mut Jog) -> Result<bool, String> {
     let r = (&mut j.leg)
         .await
         .map_err(|e| format!("the jog task failed: {e}"))?;
@@ -402,7 +401,7 @@ async fn next_leg(app: &AppState, j: &mut Jog<'_>) -> Result<bool, String> {
 /// Ends a jog: stops the axis (interrupting the leg in flight), waits for the leg to wind
 /// down, releases the manual lock, and says where the axis stopped. The stop is repeated if
 /// the leg's move reached the axis only after the first stop.
-async fn finish(mut j: Jog<'_>, why: End) -> serde_json::Value {
+async fn finish(mut j: Jog, why: End) -> serde_json::Value {
     for _ in 0..STOP_TRIES {
         if j.leg.is_finished() {
             break;

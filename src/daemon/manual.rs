@@ -1,20 +1,89 @@
 //! The rules of manual device commands, shared by the HTTP device endpoints and the jog
-//! WebSocket: what is refused (e-stop latched, a run active), the one-at-a-time lock, how a
+//! WebSocket: what is refused (e-stop latched, a run active), the per-device locks, how a
 //! move is cut short by the e-stop, and how device errors become API errors.
+//!
+//! Commands on one device run one at a time; commands on different devices (a lamp switch
+//! during a long turntable move) do not wait for each other. A run start waits for every
+//! command in flight.
 
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use axum::http::StatusCode;
 use stagehand_devices::DeviceError;
 use stagehand_devices::axis::AxisHandle;
-use tokio::sync::MutexGuard;
+use tokio::sync::OwnedMutexGuard;
 
 use super::error::{ApiError, ApiResult};
 use super::state::AppState;
 
-/// How long a manual command waits for the one before it (a lamp switch behind another)
-/// before it is refused as busy.
+/// How long a manual command waits for the one before it on the same device (a lamp switch
+/// behind another) before it is refused as busy.
 const LOCK_WAIT: Duration = Duration::from_secs(1);
+
+/// The lock key of an axis.
+pub fn axis_key(id: &str) -> String {
+    format!("axis {id}")
+}
+
+/// The lock key of a lamp.
+pub fn lamp_key(id: &str) -> String {
+    format!("lamp {id}")
+}
+
+/// The lock key of the laser.
+pub const LASER_KEY: &str = "laser";
+
+/// One lock per device (by key: [`axis_key`], [`lamp_key`], [`LASER_KEY`]), made on first use.
+#[derive(Default)]
+pub struct ManualLocks {
+    locks: Mutex<BTreeMap<String, Arc<tokio::sync::Mutex<()>>>>,
+}
+
+/// The locks a manual command holds until it ends (dropping it releases them).
+pub struct ManualGuard {
+    _held: Vec<OwnedMutexGuard<()>>,
+}
+
+impl ManualLocks {
+    fn mutex(&self, key: &str) -> Arc<tokio::sync::Mutex<()>> {
+        let mut locks = self.locks.lock().unwrap_or_else(|p| p.into_inner());
+        locks.entry(key.to_string()).or_default().clone()
+    }
+
+    /// Waits for the locks of `keys`, taken in key order (as every caller does, so two
+    /// commands on overlapping devices never deadlock).
+    async fn lock(&self, keys: &[String]) -> ManualGuard {
+        let mut keys: Vec<&String> = keys.iter().collect();
+        keys.sort();
+        keys.dedup();
+        let mut held = Vec::with_capacity(keys.len());
+        for key in keys {
+            held.push(self.mutex(key).lock_owned().await);
+        }
+        ManualGuard { _held: held }
+    }
+
+    /// Takes the locks of `keys` if they are all free.
+    fn try_lock(&self, keys: &[String]) -> Option<ManualGuard> {
+        let held = keys
+            .iter()
+            .map(|k| self.mutex(k).try_lock_owned().ok())
+            .collect::<Option<Vec<_>>>()?;
+        Some(ManualGuard { _held: held })
+    }
+
+    /// Waits until no manual command is in flight on any device, and holds them all (a run
+    /// start: commands arriving meanwhile see the run and are refused).
+    pub async fn all(&self) -> ManualGuard {
+        let keys: Vec<String> = {
+            let locks = self.locks.lock().unwrap_or_else(|p| p.into_inner());
+            locks.keys().cloned().collect()
+        };
+        self.lock(&keys).await
+    }
+}
 
 /// 409 when the e-stop is latched.
 pub fn refuse_if_latched(app: &AppState) -> ApiResult<()> {
@@ -46,9 +115,9 @@ pub fn refuse_if_running(app: &AppState) -> ApiResult<()> {
 }
 
 /// Checks the refusals (`latch`: also refuse while the e-stop is latched, for commands that
-/// move or emit) and takes the manual lock, waiting at most [`LOCK_WAIT`] for the command
-/// before it.
-pub async fn lock(app: &AppState, latch: bool) -> ApiResult<MutexGuard<'_, ()>> {
+/// move or emit) and takes the locks of the devices `keys` names, waiting at most
+/// [`LOCK_WAIT`] for commands in flight on them.
+pub async fn lock(app: &AppState, keys: &[String], latch: bool) -> ApiResult<ManualGuard> {
     let check = || -> ApiResult<()> {
         if latch {
             refuse_if_latched(app)?;
@@ -56,7 +125,7 @@ pub async fn lock(app: &AppState, latch: bool) -> ApiResult<MutexGuard<'_, ()>> 
         refuse_if_running(app)
     };
     check()?;
-    let guard = tokio::time::timeout(LOCK_WAIT, app.manual.lock())
+    let guard = tokio::time::timeout(LOCK_WAIT, app.manual.lock(keys))
         .await
         .map_err(|_| busy())?;
     // The rig may have changed while this command waited.
@@ -65,14 +134,14 @@ pub async fn lock(app: &AppState, latch: bool) -> ApiResult<MutexGuard<'_, ()>> 
 }
 
 /// Like [`lock`] without waiting (the jog WebSocket answers at once).
-pub fn try_lock(app: &AppState) -> ApiResult<MutexGuard<'_, ()>> {
+pub fn try_lock(app: &AppState, keys: &[String]) -> ApiResult<ManualGuard> {
     refuse_if_latched(app)?;
     refuse_if_running(app)?;
-    app.manual.try_lock().map_err(|_| busy())
+    app.manual.try_lock(keys).ok_or_else(busy)
 }
 
 fn busy() -> ApiError {
-    ApiError::conflict("another manual command is in progress (a move or homing)")
+    ApiError::conflict("another manual command on this device is in progress (a move or homing)")
         .hint("wait for it to finish, or stop the axis with `POST /api/axes/{id}/stop`")
 }
 

@@ -18,6 +18,7 @@ pub mod image_convert;
 pub mod jog_ws;
 pub mod manual;
 pub mod operator;
+pub mod queue;
 pub mod run_start;
 pub mod runs;
 pub mod scripts;
@@ -31,11 +32,12 @@ use std::sync::{Arc, OnceLock};
 
 use axum::Router;
 use axum::extract::DefaultBodyLimit;
-use axum::http::{StatusCode, Uri};
+use axum::http::{HeaderValue, StatusCode, Uri, header};
 use axum::response::IntoResponse;
 use metrics_exporter_prometheus::{PrometheusBuilder, PrometheusHandle};
 use stagehand_devices::clock::RigClock;
 use tokio::sync::oneshot;
+use tower_http::set_header::SetResponseHeaderLayer;
 use utoipa_swagger_ui::SwaggerUi;
 
 use self::auth::Tokens;
@@ -97,26 +99,28 @@ pub struct RunningDaemon {
 impl RunningDaemon {
     /// Stops serving: aborts any run, puts the rig in its safe state, closes the listener.
     /// The rig is made safe first, before any client is waited for.
+    /// The run's final `run` event reaches the SSE clients before their streams end.
     pub async fn shutdown(mut self) {
         self.state.runs.abort();
         self.state.estop.latch();
         if let Err(e) = self.state.rig.safe_state().await {
             tracing::error!("shutdown: safe state: {e}");
         }
-        self.state.hub.close();
-        if let Some(tx) = self.shutdown.take() {
-            let _ = tx.send(());
-        }
         let grace = std::time::Duration::from_secs(SHUTDOWN_GRACE_S);
-        if tokio::time::timeout(grace, &mut self.server).await.is_err() {
-            tracing::warn!("shutdown: clients still connected after {SHUTDOWN_GRACE_S} s; closing");
-            self.server.abort();
-        }
+        // The aborted run publishes its final event once it has wound down.
         if tokio::time::timeout(grace, self.state.runs.wait_idle())
             .await
             .is_err()
         {
             tracing::warn!("shutdown: the run did not wind down within {SHUTDOWN_GRACE_S} s");
+        }
+        self.state.hub.close();
+        if let Some(tx) = self.shutdown.take() {
+            let _ = tx.send(());
+        }
+        if tokio::time::timeout(grace, &mut self.server).await.is_err() {
+            tracing::warn!("shutdown: clients still connected after {SHUTDOWN_GRACE_S} s; closing");
+            self.server.abort();
         }
         // The run's own abort path ends in the safe state too; make sure of it.
         if let Err(e) = self.state.rig.safe_state().await {
@@ -186,10 +190,13 @@ pub async fn start(opts: ServeOptions) -> Result<RunningDaemon, DaemonError> {
         runs: runs::RunManager::default(),
         estop: estop::EStop::default(),
         metrics: metrics_handle(),
-        manual: tokio::sync::Mutex::new(()),
+        manual: manual::ManualLocks::default(),
+        started: std::time::Instant::now(),
+        queue: queue::RunQueue::default(),
     };
     let state = AppState(Arc::new(daemon));
     device_state::spawn_device_watch(state.clone());
+    queue::spawn_worker(state.clone());
     let listener = tokio::net::TcpListener::bind(opts.listen)
         .await
         .map_err(|e| DaemonError::Listen {
@@ -227,6 +234,8 @@ pub async fn start(opts: ServeOptions) -> Result<RunningDaemon, DaemonError> {
 /// document and Swagger UI, the dashboard, and a JSON 404 for everything else.
 pub fn router(state: AppState) -> Router {
     let (api, mut openapi) = api::routes().split_for_parts();
+    let (public, public_doc) = api::public_routes().split_for_parts();
+    openapi.merge(public_doc);
     api::document_common_errors(&mut openapi);
     let api = api
         .layer(axum::middleware::from_fn_with_state(
@@ -234,14 +243,37 @@ pub fn router(state: AppState) -> Router {
             auth::require_token,
         ))
         .layer(DefaultBodyLimit::max(MAX_BODY_BYTES));
-    Router::new()
+    let own = Router::new()
         .merge(api)
+        .merge(public)
         .merge(web::routes())
-        .with_state(state)
-        .merge(SwaggerUi::new("/docs").url("/openapi.json", openapi))
         .fallback(not_found)
+        .layer(SetResponseHeaderLayer::if_not_present(
+            header::CONTENT_SECURITY_POLICY,
+            HeaderValue::from_static(CONTENT_SECURITY_POLICY),
+        ));
+    own.with_state(state)
+        .merge(SwaggerUi::new("/docs").url("/openapi.json", openapi))
         .layer(axum::middleware::from_fn(error::json_errors))
+        .layer(SetResponseHeaderLayer::overriding(
+            header::X_FRAME_OPTIONS,
+            HeaderValue::from_static("DENY"),
+        ))
+        .layer(SetResponseHeaderLayer::overriding(
+            header::X_CONTENT_TYPE_OPTIONS,
+            HeaderValue::from_static("nosniff"),
+        ))
 }
+
+/// The Content-Security-Policy of the dashboard and the API: only the daemon's own scripts,
+/// styles, images and connections (no inline script, no other origin, no framing).
+/// `style-src-attr 'unsafe-inline'` allows `style="…"` attributes only (the dashboard sets a
+/// camera tile's aspect ratio that way), never a `<style>` element or inline script. Swagger UI
+/// (`/docs/`) is vendored code with inline styles and keeps only the headers below.
+pub const CONTENT_SECURITY_POLICY: &str = "default-src 'self'; script-src 'self'; \
+    style-src 'self'; style-src-attr 'unsafe-inline'; img-src 'self' data: blob:; \
+    connect-src 'self'; object-src 'none'; base-uri 'none'; form-action 'self'; \
+    frame-ancestors 'none'";
 
 async fn not_found(uri: Uri) -> impl IntoResponse {
     ApiError::new(StatusCode::NOT_FOUND, format!("no route {}", uri.path()))
@@ -262,7 +294,13 @@ pub fn serve(opts: ServeOptions) -> Result<(), DaemonError> {
             "stagehand daemon on rig `{}`",
             daemon.state.rig_source.spec.rig.name
         );
-        eprintln!("  dashboard:  http://{addr}/");
+        eprintln!("  dashboard:  {}", dashboard_url(addr));
+        if addr.ip().is_unspecified() {
+            eprintln!(
+                "              (listening on every interface, port {})",
+                addr.port()
+            );
+        }
         eprintln!("  API:        http://{addr}/api/  (OpenAPI: /openapi.json, Swagger UI: /docs/)");
         eprintln!(
             "  tokens:     {}{}",
@@ -280,6 +318,21 @@ pub fn serve(opts: ServeOptions) -> Result<(), DaemonError> {
     })
 }
 
+/// The dashboard's URL for the startup banner: `http://ADDR/`, on loopback when the daemon
+/// listens on every interface (`0.0.0.0` is not an address a browser can open).
+pub fn dashboard_url(addr: SocketAddr) -> String {
+    let mut addr = addr;
+    if addr.ip().is_unspecified() {
+        let loopback: std::net::IpAddr = if addr.is_ipv4() {
+            std::net::Ipv4Addr::LOCALHOST.into()
+        } else {
+            std::net::Ipv6Addr::LOCALHOST.into()
+        };
+        addr.set_ip(loopback);
+    }
+    format!("http://{addr}/")
+}
+
 async fn shutdown_signal() {
     let term = async {
         match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
@@ -292,5 +345,19 @@ async fn shutdown_signal() {
     tokio::select! {
         _ = tokio::signal::ctrl_c() => {}
         _ = term => {}
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_banner_names_a_dashboard_url_a_browser_can_open() {
+        let url = |a: &str| dashboard_url(a.parse().expect("address"));
+        assert_eq!(url("127.0.0.1:8080"), "http://127.0.0.1:8080/");
+        assert_eq!(url("192.168.1.20:80"), "http://192.168.1.20:80/");
+        assert_eq!(url("0.0.0.0:8080"), "http://127.0.0.1:8080/");
+        assert_eq!(url("[::]:9000"), "http://[::1]:9000/");
     }
 }

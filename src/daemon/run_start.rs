@@ -10,7 +10,7 @@ use axum::http::StatusCode;
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
-use super::error::ApiError;
+use super::error::{ApiError, ViolationItem};
 use super::frame_index::{self, FrameInfo};
 use super::runs::{ActiveRun, LaunchSpec, Reservation};
 use super::scripts::{self, EstimateInfo, Library, ViolationInfo};
@@ -21,8 +21,8 @@ use crate::script::ScriptSource;
 use crate::session::{self, Prepared, SessionError};
 use crate::storage::{RunStatus, RunStore, StorageError};
 
-/// `POST /api/runs`.
-#[derive(Debug, Clone, Deserialize, ToSchema)]
+/// `POST /api/runs` (and `POST /api/queue`).
+#[derive(Debug, Clone, Deserialize, Serialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct StartRun {
     /// Script name (`quickstart` or `quickstart.rhai`).
@@ -81,14 +81,38 @@ fn refuse_if_latched(app: &AppState) -> Result<(), ApiError> {
 }
 
 /// Maps a failed `prepare` / `create_run`: the script's fault is a 422 saying where.
+/// Script errors and plan violations also come as a list of `{line, col, message}`.
 fn session_error(script: &str, e: SessionError) -> ApiError {
     match e {
-        SessionError::Script(e) => ApiError::unprocessable(e.to_string()).hint(format!(
-            "fix the script; `POST /api/scripts/{script}/validate` shows the dry run"
-        )),
-        e @ SessionError::Invalid(..) => ApiError::unprocessable(e.to_string()).hint(format!(
-            "fix the errors above; `POST /api/scripts/{script}/validate` shows the dry run"
-        )),
+        SessionError::Script(e) => {
+            let (line, col) = e.position().unzip();
+            let item = ViolationItem {
+                line,
+                col,
+                message: e.to_string(),
+            };
+            ApiError::unprocessable(e.to_string())
+                .hint(format!(
+                    "fix the script; `POST /api/scripts/{script}/validate` shows the dry run"
+                ))
+                .violations(vec![item])
+        }
+        SessionError::Invalid(ref violations, _) => {
+            let items = violations
+                .iter()
+                .filter(|v| v.severity == crate::validate::Severity::Error)
+                .map(|v| ViolationItem {
+                    line: Some(v.at.line),
+                    col: Some(v.at.col),
+                    message: v.message.clone(),
+                })
+                .collect();
+            ApiError::unprocessable(e.to_string())
+                .hint(format!(
+                    "fix the errors above; `POST /api/scripts/{script}/validate` shows the dry run"
+                ))
+                .violations(items)
+        }
         e => ApiError::internal(format!("cannot create the run: {e}")),
     }
 }
@@ -154,7 +178,14 @@ fn launch_new(
 
 /// Starts a script of the library.
 pub async fn start_script(app: &AppState, req: StartRun) -> Result<Started, ApiError> {
-    refuse_if_latched(app)?;
+    start_script_run(app, req).await.map(|(_, s)| s)
+}
+
+/// The script and `--set` overrides of a start request, checked (seed, script name, values).
+pub fn checked_request(
+    app: &AppState,
+    req: &StartRun,
+) -> Result<(ScriptSource, Vec<(String, String)>), ApiError> {
     if let Some(seed) = req.seed
         && seed != app.seed
     {
@@ -166,10 +197,20 @@ pub async fn start_script(app: &AppState, req: StartRun) -> Result<Started, ApiE
     }
     let (_, source) = Library::of(app).read(&req.script)?;
     let set = scripts::overrides(req.set.as_ref())?;
+    Ok((source, set))
+}
+
+/// Starts a script of the library; also the run, to follow it to its end (the run queue).
+pub async fn start_script_run(
+    app: &AppState,
+    req: StartRun,
+) -> Result<(Arc<ActiveRun>, Started), ApiError> {
+    refuse_if_latched(app)?;
+    let (source, set) = checked_request(app, &req)?;
     let reservation = app.runs.reserve(app)?;
     reservation.settle().await?;
     let (prepared, store) = prepare_run(app, source, set).await?;
-    launch_new(app, reservation, prepared, store, Start::Establish).map(|(_, s)| s)
+    launch_new(app, reservation, prepared, store, Start::Establish)
 }
 
 /// The directory of a stored run: 400 for a bad id, 404 if there is none.
@@ -201,12 +242,15 @@ pub async fn resume_stored(app: &AppState, run_id: &str) -> Result<Arc<ActiveRun
         let dir = dir.clone();
         tokio::task::spawn_blocking(move || {
             let stored = stored_runs::read(&dir);
-            session::reopen(&dir).map(|r| (r, stored))
+            session::reopen(&dir).map(|r| {
+                let eta = remaining_rig_time_s(&r);
+                (r, stored, eta)
+            })
         })
         .await
         .map_err(|e| ApiError::internal(format!("reopening the run stopped: {e}")))?
     };
-    let (reopened, stored) = opened.map_err(|e| match e {
+    let (reopened, stored, remaining_s) = opened.map_err(|e| match e {
         SessionError::Storage(StorageError::RunInUse { .. }) => {
             refused("another process is writing it".into())
         }
@@ -243,12 +287,30 @@ pub async fn resume_stored(app: &AppState, run_id: &str) -> Result<Arc<ActiveRun
         total_steps: reopened.plan.steps.len(),
         steps_done: stored.steps_done,
         frames_written: stored.frames,
-        estimated_rig_time_s: 0.0,
+        estimated_rig_time_s: remaining_s,
     };
     let rig = app.rig.clone();
     reservation.launch(spec, move |wiring| {
         session::resume_on(reopened, rig, wiring)
     })
+}
+
+/// The estimated rig time of the steps a resumed run still has to do (from its first step not
+/// yet durable, as the executor estimates it), so a resume answers a real ETA.
+fn remaining_rig_time_s(r: &session::Reopened) -> f64 {
+    use crate::estimate::{estimate_from, state_before};
+    let done = match r.store.done_steps() {
+        Ok(done) => done,
+        Err(e) => {
+            tracing::warn!("cannot read the run's done steps for its ETA: {e}");
+            Default::default()
+        }
+    };
+    let first = (0..r.plan.steps.len())
+        .find(|i| !done.contains(i))
+        .unwrap_or(r.plan.steps.len());
+    let start = state_before(&r.plan, &r.rig.spec, first);
+    estimate_from(&r.plan, &r.rig.spec, first, &start).rig_time_s
 }
 
 /// A Rhai script of one capture with the rig as it is (run in place: nothing moves or

@@ -383,7 +383,7 @@ impl Reservation {
     /// Waits for a manual device command in flight to finish (none starts while the slot is
     /// claimed), then fails if the e-stop latched or an abort came while the run was prepared.
     pub async fn settle(&self) -> Result<(), ApiError> {
-        match tokio::time::timeout(MANUAL_WAIT, self.app.manual.lock()).await {
+        match tokio::time::timeout(MANUAL_WAIT, self.app.manual.all()).await {
             Ok(guard) => drop(guard),
             Err(_) => {
                 return Err(ApiError::conflict(
@@ -508,8 +508,9 @@ fn outcome_of(
 }
 
 /// Publishes how the run ended, frees the slot and wakes whoever waits for the outcome.
-fn finish(app: &AppState, active: &Arc<ActiveRun>, outcome: Outcome) {
+fn finish(app: &AppState, active: &Arc<ActiveRun>, mut outcome: Outcome) {
     let run_id = &active.run_id;
+    outcome.message = outcome.message.map(|m| for_api(&m, run_id));
     if outcome.status != "done" {
         let message = outcome.message.clone().unwrap_or_default();
         tracing::warn!(run = %run_id, status = %outcome.status, "run ended: {message}");
@@ -560,7 +561,7 @@ async fn forward(app: AppState, active: Arc<ActiveRun>, mut rx: broadcast::Recei
         if let Event::Warning { message } = &event {
             app.hub.publish(
                 "warning",
-                serde_json::json!({"run_id": active.run_id, "message": message}),
+                serde_json::json!({"run_id": active.run_id, "message": for_api(message, &active.run_id)}),
             );
         }
         if let Event::StepDurable { step, files } = event
@@ -571,14 +572,37 @@ async fn forward(app: AppState, active: Arc<ActiveRun>, mut rx: broadcast::Recei
     }
 }
 
-/// `event` as JSON with `run_id` added.
+/// `event` as JSON with `run_id` added, and its `message` worded for API clients.
 fn with_run_id(event: &impl Serialize, run_id: &str) -> serde_json::Value {
     let mut value = serde_json::to_value(event)
         .unwrap_or_else(|e| serde_json::json!({"event": "unserialisable", "error": e.to_string()}));
     if let Some(map) = value.as_object_mut() {
+        if let Some(serde_json::Value::String(m)) = map.get_mut("message") {
+            *m = for_api(m, run_id);
+        }
         map.insert("run_id".into(), run_id.into());
     }
     value
+}
+
+/// A message of the executor or the storage worded for the daemon's clients: where it tells
+/// a CLI user to run `stagehand resume`, an API client or dashboard user is told how to
+/// resume the run from there instead.
+pub fn for_api(message: &str, run_id: &str) -> String {
+    let endpoint = format!("`POST /api/runs/{run_id}/resume`");
+    super::error::for_daemon(message)
+        .replace(
+            "run `stagehand resume`",
+            &format!("resume it ({endpoint} or Resume on the dashboard)"),
+        )
+        .replace(
+            "`stagehand resume` the run",
+            &format!("resume the run ({endpoint} or Resume on the dashboard)"),
+        )
+        .replace(
+            "`stagehand resume`",
+            &format!("{endpoint} (or Resume on the dashboard)"),
+        )
 }
 
 /// Publishes a `frame` event for each frame of a durable step.

@@ -262,10 +262,17 @@ pub fn overrides(
             serde_json::Value::String(s) => Ok(s.clone()),
             serde_json::Value::Number(n) => Ok(n.to_string()),
             serde_json::Value::Bool(b) => Ok(b.to_string()),
-            _ => Err(ApiError::unprocessable(format!(
-                "set.{name}: values are strings, numbers, booleans or lists of those"
-            ))
-            .hint(r#"e.g. "set": {"lamp_count": 1, "bracket": [0.01, 0.04]}"#)),
+            _ => {
+                let message =
+                    format!("set.{name}: values are strings, numbers, booleans or lists of those");
+                Err(ApiError::unprocessable(message.clone())
+                    .hint(r#"e.g. "set": {"lamp_count": 1, "bracket": [0.01, 0.04]}"#)
+                    .violations(vec![super::error::ViolationItem {
+                        line: None,
+                        col: None,
+                        message,
+                    }]))
+            }
         }
     };
     let mut out = Vec::new();

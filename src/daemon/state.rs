@@ -31,8 +31,12 @@ pub struct Daemon {
     pub runs: RunManager,
     pub estop: EStop,
     pub metrics: PrometheusHandle,
-    /// Manual device commands (move, lamps, laser) run one at a time.
-    pub manual: tokio::sync::Mutex<()>,
+    /// Manual device commands (move, lamps, laser) run one at a time per device.
+    pub manual: super::manual::ManualLocks,
+    /// Runs submitted ahead of time, started in order when the rig is idle.
+    pub queue: super::queue::RunQueue,
+    /// When the daemon started (`GET /api/health` reports the uptime).
+    pub started: std::time::Instant,
 }
 
 impl Daemon {

@@ -20,7 +20,14 @@ pub struct StoredRun {
     pub status: String,
     /// The index's status message (why a run failed or stopped).
     pub message: Option<String>,
+    /// Wall-clock Unix time the run was created (its start).
     pub created_unix_s: f64,
+    /// Wall-clock Unix time it ended: when its status was last recorded for a stopped run, the
+    /// last durable step for one the daemon was interrupted in; `null` while it runs.
+    pub ended_unix_s: Option<f64>,
+    /// Wall-clock seconds from start to end (to now while it runs; pauses and the time between
+    /// the sessions of a resumed run count), `null` when unknown.
+    pub duration_s: Option<f64>,
     pub steps_done: usize,
     pub steps_total: usize,
     /// Frames indexed (raw and HDR).
@@ -49,6 +56,8 @@ pub fn read(dir: &Path) -> StoredRun {
             status: "unreadable".into(),
             message: None,
             created_unix_s: modified_unix_s(dir),
+            ended_unix_s: None,
+            duration_s: None,
             steps_done: 0,
             steps_total: 0,
             frames: 0,
@@ -69,19 +78,34 @@ fn read_inner(dir: &Path, run_id: &str) -> Result<StoredRun, String> {
     let sql = |e: rusqlite::Error| format!("index {}: {e}", index.display());
     // Read-only and leaving no `-shm`/`-wal` files behind in a finished run.
     let conn = crate::daemon::frame_index::open_index(dir, run_id).map_err(|e| e.to_string())?;
-    let (status, message): (String, Option<String>) = conn
-        .query_row("SELECT status, message FROM runs", [], |r| {
-            Ok((r.get(0)?, r.get(1)?))
-        })
-        .map_err(sql)?;
-    let (steps_total, steps_done, rig_time_s): (i64, i64, Option<f64>) = conn
+    let (status, message, updated_unix_s): (String, Option<String>, f64) = conn
         .query_row(
-            "SELECT COUNT(*), COALESCE(SUM(status = 'done'), 0),
-                    MAX(CASE WHEN status = 'done' THEN rig_time_end_s END) FROM steps",
+            "SELECT status, message, updated_unix_s FROM runs",
             [],
             |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
         )
         .map_err(sql)?;
+    let (steps_total, steps_done, rig_time_s, last_step_unix_s): (
+        i64,
+        i64,
+        Option<f64>,
+        Option<f64>,
+    ) = conn
+        .query_row(
+            "SELECT COUNT(*), COALESCE(SUM(status = 'done'), 0),
+                    MAX(CASE WHEN status = 'done' THEN rig_time_end_s END),
+                    MAX(wall_time_unix_s) FROM steps",
+            [],
+            |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?)),
+        )
+        .map_err(sql)?;
+    // A run still `running` in its index either runs now (the caller knows) or was
+    // interrupted: then it ended with its last durable step.
+    let ended_unix_s = if status == "running" {
+        last_step_unix_s
+    } else {
+        Some(updated_unix_s)
+    };
     let frames: i64 = conn
         .query_row("SELECT COUNT(*) FROM frames", [], |r| r.get(0))
         .map_err(sql)?;
@@ -92,6 +116,8 @@ fn read_inner(dir: &Path, run_id: &str) -> Result<StoredRun, String> {
         status,
         message,
         created_unix_s: manifest.created_unix_s,
+        ended_unix_s,
+        duration_s: ended_unix_s.map(|end| (end - manifest.created_unix_s).max(0.0)),
         steps_done: count(steps_done),
         steps_total: count(steps_total),
         frames: count(frames),

@@ -3,6 +3,8 @@
 
 #![allow(dead_code)]
 
+pub mod api;
+
 use std::future::Future;
 use std::path::{Path, PathBuf};
 use std::pin::Pin;

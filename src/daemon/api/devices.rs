@@ -2,7 +2,8 @@
 //! laser interlock, and the e-stop. Every command answers the new state of what it touched.
 //!
 //! Commands that move or emit are refused (409) while the e-stop is latched or a run is
-//! active, and run one at a time (the daemon's manual lock). Stopping never is: axis stop,
+//! active, and run one at a time per device (commands on different devices do not wait for
+//! each other). Stopping never is: axis stop,
 //! laser off and disarm, and the e-stop always work. Switching lamps off is allowed with the
 //! e-stop latched (it is the safe direction) but not during a run, whose frames it would spoil.
 
@@ -17,7 +18,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use crate::daemon::device_state::{self, AxisState, LampState, LaserState};
-use crate::daemon::error::{ApiError, ApiJson, ApiPath, ApiResult, ErrorBody};
+use crate::daemon::error::{ApiError, ApiJson, ApiPath, ApiResult, ErrorBody, object_body};
 use crate::daemon::estop::{self, EStopReport};
 use crate::daemon::jog_ws;
 use crate::daemon::manual::{self, device_error};
@@ -120,15 +121,12 @@ fn finite(name: &str, v: f64) -> ApiResult<f64> {
     }
 }
 
-/// Parses an optional JSON body (empty → default).
+/// Parses an optional JSON object body (empty → default).
 fn optional_body<T: DeserializeOwned + Default>(body: &Bytes) -> ApiResult<T> {
     if body.iter().all(u8::is_ascii_whitespace) {
         return Ok(T::default());
     }
-    serde_json::from_slice(body).map_err(|e| {
-        ApiError::bad_request(format!("request body: {e}"))
-            .hint("send a JSON object as /openapi.json describes, or no body")
-    })
+    object_body(body)
 }
 
 /// Counts a manual command by kind and outcome.
@@ -186,9 +184,80 @@ async fn jog_axis(
 async fn move_to(app: &AppState, id: &str, target_deg: f64) -> ApiResult<ApiJson<AxisState>> {
     let a = axis(app, id)?;
     let target = finite("target_deg", target_deg)?;
-    let _guard = manual::lock(app, true).await?;
+    let _guard = manual::lock(app, &[manual::axis_key(id)], true).await?;
     manual::guarded(app, a, a.move_to(target)).await?;
     Ok(ApiJson(device_state::axis_state(a)))
+}
+
+/// `POST /api/axes/move`.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct MultiMoveRequest {
+    /// Absolute target angle in degrees per axis id, e.g. `{"turntable": 90, "light_arc": 30}`.
+    #[schema(value_type = Object)]
+    pub targets: std::collections::BTreeMap<String, f64>,
+}
+
+/// Moves several axes at once, concurrently, and answers when all have arrived. The checks of
+/// the single-axis move apply to each; nothing moves unless every axis and target is valid.
+#[utoipa::path(post, path = "/api/axes/move", tag = "devices",
+    request_body = MultiMoveRequest,
+    responses(
+        (status = 200, body = Vec<AxisState>, description = "Every axis arrived (in id order)"),
+        (status = 400, body = ErrorBody, description = "Malformed body"),
+        (status = 403, body = ErrorBody, description = "Read-only token"),
+        (status = 404, body = ErrorBody, description = "No such axis"),
+        (status = 409, body = ErrorBody, description = "An axis not homed, e-stop latched, a run active, busy, or interrupted by a stop"),
+        (status = 422, body = ErrorBody, description = "No targets, or a target outside the soft limits or not finite"),
+        (status = 502, body = ErrorBody, description = "An axis failed")))]
+async fn move_axes(
+    State(app): State<AppState>,
+    ApiJson(req): ApiJson<MultiMoveRequest>,
+) -> ApiResult<ApiJson<Vec<AxisState>>> {
+    let r = async {
+        if req.targets.is_empty() {
+            return Err(ApiError::unprocessable("targets: no axis given")
+                .hint(r#"e.g. {"targets": {"turntable": 90, "light_arc": 30}}"#));
+        }
+        let mut moves = Vec::with_capacity(req.targets.len());
+        for (id, &target) in &req.targets {
+            let a = axis(&app, id)?;
+            let target = finite(&format!("targets.{id}"), target)?;
+            let spec = a.spec();
+            if !(spec.min_deg..=spec.max_deg).contains(&target) {
+                return Err(ApiError::unprocessable(format!(
+                    "targets.{id}: {target}° is outside the soft limits [{}, {}]°",
+                    spec.min_deg, spec.max_deg
+                ))
+                .hint("nothing moved; choose targets inside every axis's limits"));
+            }
+            if !a.status().homed {
+                return Err(
+                    ApiError::conflict(format!("{id}: not homed; nothing moved"))
+                        .hint(format!("home it first: `POST /api/axes/{id}/home`")),
+                );
+            }
+            moves.push((a, target));
+        }
+        let keys: Vec<String> = req.targets.keys().map(|id| manual::axis_key(id)).collect();
+        let _guard = manual::lock(&app, &keys, true).await?;
+        let results = futures_util::future::join_all(
+            moves
+                .iter()
+                .map(|(a, target)| manual::guarded(&app, a, a.move_to(*target))),
+        )
+        .await;
+        for r in results {
+            r?;
+        }
+        Ok(ApiJson(
+            moves
+                .iter()
+                .map(|(a, _)| device_state::axis_state(a))
+                .collect(),
+        ))
+    };
+    count("move_many", r.await)
 }
 
 /// Homes an axis (drives to its home switch; the position then reads 0°).
@@ -206,7 +275,7 @@ async fn home_axis(
 ) -> ApiResult<ApiJson<AxisState>> {
     let r = async {
         let a = axis(&app, &id)?;
-        let _guard = manual::lock(&app, true).await?;
+        let _guard = manual::lock(&app, &[manual::axis_key(&id)], true).await?;
         manual::guarded(&app, a, a.home()).await?;
         Ok(ApiJson(device_state::axis_state(a)))
     };
@@ -259,7 +328,7 @@ async fn set_lamp(
         let bank = app.rig.banks.get(&wiring.bank).ok_or_else(|| {
             ApiError::internal(format!("lamp `{id}`: no switch bank `{}`", wiring.bank))
         })?;
-        let _guard = manual::lock(&app, req.on).await?;
+        let _guard = manual::lock(&app, &[manual::lamp_key(&id)], req.on).await?;
         bank.set_many(&[(wiring.channel, req.on)])
             .await
             .map_err(|e| device_error(&e))?;
@@ -279,7 +348,13 @@ async fn set_lamp(
         (status = 502, body = ErrorBody, description = "A switch bank failed")))]
 async fn lamps_off(State(app): State<AppState>) -> ApiResult<ApiJson<Vec<LampState>>> {
     let r = async {
-        let _guard = manual::lock(&app, false).await?;
+        let keys: Vec<String> = app
+            .rig
+            .lamps
+            .keys()
+            .map(|id| manual::lamp_key(id))
+            .collect();
+        let _guard = manual::lock(&app, &keys, false).await?;
         let mut by_bank: std::collections::BTreeMap<&str, Vec<(u32, bool)>> = Default::default();
         for w in app.rig.lamps.values() {
             by_bank
@@ -323,7 +398,7 @@ async fn laser_arm(State(app): State<AppState>, body: Bytes) -> ApiResult<ApiJso
                 "send {\"confirm\": true} once eyes are protected and the beam path is clear",
             ));
             }
-            let _guard = manual::lock(&app, true).await?;
+            let _guard = manual::lock(&app, &[manual::LASER_KEY.into()], true).await?;
             l.arm().await.map_err(|e| device_error(&e))?;
             laser_state(&app)
         };
@@ -362,7 +437,7 @@ async fn laser_on(State(app): State<AppState>, body: Bytes) -> ApiResult<ApiJson
         let l = laser(&app)?;
         let req: LaserOnRequest = optional_body(&body)?;
         let colour = req.colour_nm.unwrap_or(l.status().fitted_nm);
-        let _guard = manual::lock(&app, true).await?;
+        let _guard = manual::lock(&app, &[manual::LASER_KEY.into()], true).await?;
         l.on(colour).await.map_err(|e| device_error(&e))?;
         laser_state(&app)
     };
@@ -447,6 +522,7 @@ async fn post_estop_reset(State(app): State<AppState>) -> ApiJson<EStopReport> {
 /// Device control routes, including the jog WebSocket.
 pub fn routes() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
+        .routes(routes!(move_axes))
         .routes(routes!(move_axis))
         .routes(routes!(jog_axis))
         .routes(routes!(home_axis))

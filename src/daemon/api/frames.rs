@@ -71,7 +71,8 @@ pub struct FrameQuery {
     pub kind: Option<KindParam>,
     /// Capture label.
     pub label: Option<String>,
-    /// Enclosing script blocks joined with `/`.
+    /// Enclosing script blocks joined with `/`: a prefix of whole block names (`view 3`
+    /// matches `view 3` and `view 3/light 1`, not `view 30`).
     pub block: Option<String>,
     /// Page size, 0..=1000 (default 100).
     pub limit: Option<u32>,
@@ -372,7 +373,7 @@ async fn thumbnail(
         (status = 200, body = FrameInfo),
         (status = 400, description = "Bad camera id", body = crate::daemon::error::ErrorBody),
         (status = 401, body = crate::daemon::error::ErrorBody),
-        (status = 404, description = "The camera has no frame yet", body = crate::daemon::error::ErrorBody),
+        (status = 404, description = "No such camera, or the camera has no frame yet", body = crate::daemon::error::ErrorBody),
         (status = 500, description = "The runs directory is unreadable", body = crate::daemon::error::ErrorBody)))]
 async fn latest_frame(
     State(app): State<AppState>,
@@ -383,6 +384,13 @@ async fn latest_frame(
             ApiError::bad_request("camera id must be 1..=200 characters")
                 .hint("`GET /api/status` lists the cameras"),
         );
+    }
+    if !app.rig.cameras.contains_key(&camera) {
+        let known: Vec<&str> = app.rig.cameras.keys().map(String::as_str).collect();
+        return Err(ApiError::not_found(format!(
+            "no such camera `{camera}`; this rig's cameras: {known:?}"
+        ))
+        .hint("`GET /api/status` lists the devices"));
     }
     let runs_dir = app.runs_dir();
     let cam = camera.clone();

@@ -3,6 +3,7 @@
 
 mod devices;
 mod frames;
+mod queue;
 mod runs;
 mod scripts;
 mod status;
@@ -57,7 +58,7 @@ impl Modify for CommonErrors {
                 .build()
         };
         for (path, item) in openapi.paths.paths.iter_mut() {
-            if !path.starts_with("/api/") {
+            if !path.starts_with("/api/") || path == "/api/health" {
                 continue;
             }
             let operations = [
@@ -99,6 +100,11 @@ pub fn document_common_errors(openapi: &mut utoipa::openapi::OpenApi) {
     CommonErrors.modify(openapi);
 }
 
+/// The API routes that need no token (`GET /api/health`), with their OpenAPI description.
+pub fn public_routes() -> OpenApiRouter<AppState> {
+    status::public_routes()
+}
+
 /// Every API route with its OpenAPI description (paths relative to the server root).
 pub fn routes() -> OpenApiRouter<AppState> {
     OpenApiRouter::with_openapi(ApiDoc::openapi())
@@ -107,4 +113,5 @@ pub fn routes() -> OpenApiRouter<AppState> {
         .merge(scripts::routes())
         .merge(runs::routes())
         .merge(frames::routes())
+        .merge(queue::routes())
 }

@@ -6,11 +6,11 @@ use std::collections::BTreeMap;
 use axum::extract::State;
 use axum::http::StatusCode;
 use serde::{Deserialize, Serialize};
-use utoipa::ToSchema;
+use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use crate::daemon::error::{ApiError, ApiJson, ApiPath, ApiResult};
+use crate::daemon::error::{ApiError, ApiJson, ApiPath, ApiQuery, ApiResult};
 use crate::daemon::operator::PromptInfo;
 use crate::daemon::run_start::{self, CaptureRequest, CaptureResult, StartRun, Started};
 use crate::daemon::runs::{ActiveRun, RunState};
@@ -58,9 +58,14 @@ pub struct RunDetail {
 /// `run` with the live state folded in.
 fn summarise(run: StoredRun, active: Option<&RunState>) -> RunSummary {
     let mut run = run;
+    run.message = run
+        .message
+        .map(|m| crate::daemon::runs::for_api(&m, &run.run_id));
     let live = active.filter(|a| a.run_id == run.run_id);
     if let Some(l) = live {
         run.status = l.state.clone();
+        run.ended_unix_s = None;
+        run.duration_s = Some((crate::executor::wall_now() - run.created_unix_s).max(0.0));
     } else if run.status == "running" {
         // The index says running but nothing executes it: the daemon stopped mid-run.
         run.status = "interrupted".into();
@@ -74,14 +79,29 @@ fn summarise(run: StoredRun, active: Option<&RunState>) -> RunSummary {
     }
 }
 
-/// Every run in the data directory, newest first. A broken run directory is listed with
-/// status `unreadable` and its `error`.
+/// Parameters of `GET /api/runs`.
+#[derive(Debug, Deserialize, IntoParams)]
+#[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
+pub struct RunsQuery {
+    /// At most this many runs, the newest (default: all).
+    pub limit: Option<usize>,
+}
+
+/// The runs in the data directory, newest first (by creation), each with its start, end,
+/// wall-clock duration and status; `limit` keeps the newest few. A broken run directory is
+/// listed with status `unreadable` and its `error`.
 #[utoipa::path(get, path = "/api/runs", tag = "runs",
+    params(RunsQuery),
     responses(
         (status = 200, body = Vec<RunSummary>),
+        (status = 400, description = "Bad query", body = crate::daemon::error::ErrorBody),
         (status = 401, body = crate::daemon::error::ErrorBody),
     ))]
-async fn list_runs(State(app): State<AppState>) -> ApiResult<ApiJson<Vec<RunSummary>>> {
+async fn list_runs(
+    State(app): State<AppState>,
+    ApiQuery(q): ApiQuery<RunsQuery>,
+) -> ApiResult<ApiJson<Vec<RunSummary>>> {
     let root = app.runs_dir();
     let runs = tokio::task::spawn_blocking(move || stored_runs::list(&root))
         .await
@@ -90,6 +110,7 @@ async fn list_runs(State(app): State<AppState>) -> ApiResult<ApiJson<Vec<RunSumm
     let live = app.runs.snapshot();
     Ok(ApiJson(
         runs.into_iter()
+            .take(q.limit.unwrap_or(usize::MAX))
             .map(|r| summarise(r, live.as_ref()))
             .collect(),
     ))

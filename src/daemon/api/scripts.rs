@@ -5,14 +5,14 @@ use std::collections::BTreeMap;
 
 use axum::body::Body;
 use axum::extract::State;
-use axum::http::{StatusCode, header};
+use axum::http::header;
 use axum::response::IntoResponse;
 use serde::Deserialize;
 use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use crate::daemon::error::{ApiError, ApiJson, ApiPath, ApiResult};
+use crate::daemon::error::{ApiError, ApiJson, ApiPath, ApiResult, object_body};
 use crate::daemon::scripts::{
     self, DryRun, Library, MAX_SCRIPT_BYTES, ScriptEntry, dry_run_async, too_large,
 };
@@ -153,14 +153,7 @@ async fn validate_script(
     let params: ValidateParams = if bytes.iter().all(u8::is_ascii_whitespace) {
         ValidateParams::default()
     } else {
-        serde_json::from_slice(&bytes).map_err(|e| {
-            let status = match e.classify() {
-                serde_json::error::Category::Data => StatusCode::UNPROCESSABLE_ENTITY,
-                _ => StatusCode::BAD_REQUEST,
-            };
-            ApiError::new(status, format!("request body: {e}"))
-                .hint(r#"send `{}` or `{"set": {"name": value}}`"#)
-        })?
+        object_body(&bytes).map_err(|e| e.hint(r#"send `{}` or `{"set": {"name": value}}`"#))?
     };
     let (_, source) = Library::of(&app).read(&name)?;
     let set = scripts::overrides(params.set.as_ref())?;

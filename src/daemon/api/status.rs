@@ -5,7 +5,7 @@ use std::time::Duration;
 
 use axum::Extension;
 use axum::extract::State;
-use axum::http::header;
+use axum::http::{HeaderMap, header};
 use axum::response::IntoResponse;
 use axum::response::sse::{Event, KeepAlive, Sse};
 use futures_util::Stream;
@@ -77,22 +77,45 @@ async fn recent_events(State(app): State<AppState>) -> ApiJson<Vec<HubEvent>> {
     ApiJson(app.hub.recent())
 }
 
-/// Server-Sent Events: `device`, `run`, `frame`, `prompt`, `warning`, `estop`; a client that
-/// falls behind gets a `resync` event carrying the whole status instead of the events it missed.
-/// The first event is always a `resync`.
+/// Server-Sent Events: `device`, `run`, `frame`, `prompt`, `warning`, `estop`, `queue`, each
+/// with an increasing `id`. A new stream starts with a `resync` event carrying the whole
+/// status. A client reconnecting with `Last-Event-ID` (browsers' `EventSource` does) is
+/// replayed the events it missed instead, while the daemon still holds them (the last 200),
+/// else it gets a `resync`. A client that falls behind gets a `resync` instead of the events
+/// it missed. When the daemon stops, a run it aborts sends its final `run` event before the
+/// stream ends.
 #[utoipa::path(get, path = "/api/events", tag = "status",
+    params(("Last-Event-ID" = Option<u64>, Header, description = "The `id` of the last event received: the events after it are replayed")),
     responses((status = 200, description = "text/event-stream of events", content_type = "text/event-stream")))]
-async fn events(State(app): State<AppState>) -> Sse<impl Stream<Item = Result<Event, Infallible>>> {
-    let mut rx = app.hub.subscribe();
+async fn events(
+    State(app): State<AppState>,
+    headers: HeaderMap,
+) -> Sse<impl Stream<Item = Result<Event, Infallible>>> {
+    let after = headers
+        .get("last-event-id")
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.trim().parse::<u64>().ok());
+    let (mut rx, missed) = match after {
+        Some(after) => app.hub.subscribe_after(after),
+        None => (app.hub.subscribe(), None),
+    };
     metrics::gauge!("stagehand_sse_clients").increment(1.0);
     let guard = ClientGuard;
     let stream = async_stream(move |tx| async move {
         let _guard = guard;
-        if tx.send(resync(&app)).await.is_err() {
-            return;
+        let first = match missed {
+            Some(missed) => missed.iter().map(sse_event).collect(),
+            None => vec![resync(&app)],
+        };
+        for event in first {
+            if tx.send(event).await.is_err() {
+                return;
+            }
         }
         loop {
             let received = tokio::select! {
+                // Events already published go out before the stream ends at shutdown.
+                biased;
                 r = rx.recv() => r,
                 // The client went away while nothing happened: end now, not at the next event.
                 () = tx.closed() => return,
@@ -176,6 +199,35 @@ async fn whoami(role: Option<Extension<Role>>) -> ApiJson<WhoAmI> {
     ApiJson(WhoAmI { role })
 }
 
+/// `GET /api/health`: for load balancers and monitoring, without a token.
+#[derive(Debug, Clone, Serialize, ToSchema)]
+pub struct Health {
+    /// `ok` while the daemon serves.
+    pub status: String,
+    /// The daemon's software version.
+    pub version: String,
+    /// Seconds since the daemon started.
+    pub uptime_s: f64,
+}
+
+/// Whether the daemon is up: status, version and uptime. Needs no token and says nothing
+/// else (no rig, run or device state).
+#[utoipa::path(get, path = "/api/health", tag = "status", security(()),
+    responses((status = 200, body = Health)))]
+async fn health(State(app): State<AppState>) -> ApiJson<Health> {
+    ApiJson(Health {
+        status: "ok".into(),
+        version: env!("CARGO_PKG_VERSION").into(),
+        uptime_s: app.started.elapsed().as_secs_f64(),
+    })
+}
+
+/// The routes that need no token (outside the token check).
+pub fn public_routes() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new().routes(routes!(health))
+}
+
+/// The status, event and metrics routes.
 pub fn routes() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(whoami))
