@@ -266,12 +266,10 @@ pub fn router(state: AppState) -> Router {
 }
 
 /// The Content-Security-Policy of the dashboard and the API: only the daemon's own scripts,
-/// styles, images and connections (no inline script, no other origin, no framing).
-/// `style-src-attr 'unsafe-inline'` allows `style="…"` attributes only (the dashboard sets a
-/// camera tile's aspect ratio that way), never a `<style>` element or inline script. Swagger UI
-/// (`/docs/`) is vendored code with inline styles and keeps only the headers below.
+/// styles, images and connections (no inline script or style, no other origin, no framing).
+/// Swagger UI (`/docs/`) is vendored code with inline styles and keeps only the headers below.
 pub const CONTENT_SECURITY_POLICY: &str = "default-src 'self'; script-src 'self'; \
-    style-src 'self'; style-src-attr 'unsafe-inline'; img-src 'self' data: blob:; \
+    style-src 'self'; img-src 'self' data: blob:; \
     connect-src 'self'; object-src 'none'; base-uri 'none'; form-action 'self'; \
     frame-ancestors 'none'";
 

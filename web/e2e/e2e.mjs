@@ -192,13 +192,19 @@ async function main() {
       '--disable-background-networking', '--disable-component-update', '--disable-sync'],
     viewport: { width: 1440, height: 1000 },
   });
-  // The dashboard must work under the strict policy the daemon is getting: no inline script,
-  // style attribute, handler or eval. The test adds the header itself (so it holds whatever the
-  // daemon sends) and fails on any violation.
-  await browser.route((u) => u.pathname === '/' && u.origin === base, async (route) => {
-    const res = await route.fetch();
-    await route.fulfill({ response: res, headers: { ...res.headers(), 'content-security-policy': CSP } });
-  });
+  // The dashboard must work under the strict policy the daemon sends: no inline script, style
+  // attribute, handler or eval. The daemon's header must be at least as strict as CSP above; any
+  // violation fails the test.
+  {
+    const res = await fetch(`${base}/`);
+    const policy = res.headers.get('content-security-policy') || '';
+    for (const directive of CSP.split(';').map((d) => d.trim())) {
+      if (!policy.includes(directive)) throw new Error(`the daemon's CSP lacks "${directive}": ${policy}`);
+    }
+    if (/unsafe-inline|unsafe-eval/.test(policy)) throw new Error(`the daemon's CSP allows inline code: ${policy}`);
+    if (res.headers.get('x-frame-options') !== 'DENY') throw new Error('no X-Frame-Options: DENY on the dashboard');
+    if (res.headers.get('x-content-type-options') !== 'nosniff') throw new Error('no nosniff on the dashboard');
+  }
   await browser.addInitScript(() => {
     document.addEventListener('securitypolicyviolation', (e) => {
       console.error(`CSP violation: ${e.violatedDirective} blocked ${e.blockedURI || 'inline'} at ${e.sourceFile || '?'}:${e.lineNumber}`);
@@ -529,6 +535,39 @@ async function main() {
     log(`resumed to ${done.steps_done}/${done.steps_total} steps, ${done.frames} frames`);
     await noErrorToasts(page, 'resume');
     await shot(page, 'resumed');
+  });
+
+  await stage('the interlock opened mid-sweep pauses the run; resumed, no dark laser frame is kept', async () => {
+    await page.selectOption('#script-select', 'quickstart');
+    await page.fill('#script-set', 'lamp_count=1');
+    await page.locator('#dryrun .dryrun-head').waitFor();
+    await page.click('#run-start');
+    await page.locator('#prompt-banner').waitFor({ state: 'visible' });
+    const run3 = (await status()).run.run_id;
+    await page.click('#prompt-continue');
+    // Open the door from the page once the laser emits (the sweep).
+    for (;;) {
+      const st = await status();
+      if (st.devices?.laser?.on) break;
+      if (!st.run) throw new Failure('the run ended before the laser switched on');
+      await new Promise((r) => setTimeout(r, 20));
+    }
+    await page.click('#interlock-toggle');
+    await page.locator('#warning-banner', { hasText: 'interlock' }).waitFor({ timeout: RUN_TIMEOUT_MS });
+    await page.locator('#run-badge', { hasText: 'paused' }).waitFor();
+    await shot(page, 'interlock-paused');
+    const paused = (await status()).run;
+    if (!paused || !/interlock/.test(paused.pause_reason || '')) throw new Failure(`the paused run gives no reason: ${JSON.stringify(paused)}`);
+    await page.click('#interlock-toggle');
+    await page.locator('.l-interlock', { hasText: 'interlock closed' }).waitFor();
+    await page.click('#run-resume');
+    await page.locator('#run-badge', { hasText: 'finished' }).waitFor({ timeout: RUN_TIMEOUT_MS });
+    const done = (await apiGet(base, op, '/api/runs')).find((r) => r.run_id === run3);
+    if (done.status !== 'done') throw new Failure(`after the interlock resume: ${JSON.stringify(done)}`);
+    const frames = (await apiGet(base, op, `/api/runs/${run3}/frames?limit=1000`)).frames;
+    const dark = frames.filter((f) => f.laser_armed && !f.laser_on);
+    if (dark.length) throw new Failure(`${dark.length} laser frames were recorded with the laser off`);
+    log(`interlock: paused, resumed, ${frames.length} frames, none dark`);
   });
 
   await stage('upload a script, edit it with the dry run as it is typed, save, delete', async () => {
