@@ -358,8 +358,9 @@ impl Execution {
         let mut error = error.clone();
         loop {
             let reason = format!(
-                "step {}: {error}. The run is paused and the step's frames were discarded; close the enclosure door, then resume the run to retake the step",
-                step.index
+                "step {}: {}: the laser interlock (the enclosure door switch) is open while the step needs the laser. The run is paused and the step's frames were discarded; close the enclosure door, then resume the run to retake the step",
+                step.index,
+                error.device()
             );
             tracing::warn!("{reason}");
             self.control.pause_because(reason.clone());
