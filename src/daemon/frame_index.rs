@@ -128,6 +128,21 @@ pub enum FrameIndexError {
         frame_id: i64,
         reason: String,
     },
+    /// The frame's file is missing or no longer matches the SHA-256 recorded when it was
+    /// written (500: the dataset is damaged; `stagehand verify` finds every such file and
+    /// `stagehand resume --retake` captures the step again).
+    #[error("frame {frame_id} of run {run} (step {step}) is damaged: {path} {reason}")]
+    Damaged {
+        run: String,
+        /// The run directory, for the repair commands.
+        run_dir: PathBuf,
+        frame_id: i64,
+        step: usize,
+        /// The file, relative to the run directory.
+        path: String,
+        /// What is wrong with it ("is missing", "does not match …").
+        reason: String,
+    },
     /// A filter value is out of range (400).
     #[error("{0}")]
     BadFilter(String),
@@ -413,13 +428,90 @@ pub fn frame(
         })?;
     let file = frame_file(&dir, &info.path).map_err(|reason| {
         tracing::warn!(run = run_id, frame_id, "frame file refused: {reason}");
-        FrameIndexError::FileUnavailable {
-            run: run_id.to_string(),
-            frame_id,
-            reason,
+        let gone = std::fs::symlink_metadata(dir.join(&info.path))
+            .is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound);
+        if gone && frame_file_name_is_plain(&info.path) {
+            damaged(&dir, &info, "is missing".into())
+        } else {
+            FrameIndexError::FileUnavailable {
+                run: run_id.to_string(),
+                frame_id,
+                reason,
+            }
         }
     })?;
     Ok((info, file))
+}
+
+/// True for an index path of the form `frames/<name>` (one plain file name under `frames/`),
+/// the only paths stagehand writes.
+fn frame_file_name_is_plain(rel: &str) -> bool {
+    let mut parts = Path::new(rel).components();
+    matches!(
+        (parts.next(), parts.next(), parts.next()),
+        (Some(std::path::Component::Normal(d)), Some(std::path::Component::Normal(_)), None)
+            if d == FRAMES_DIR
+    )
+}
+
+/// A [`FrameIndexError::Damaged`] for the frame `info` of the run at `run_dir`.
+fn damaged(run_dir: &Path, info: &FrameInfo, reason: String) -> FrameIndexError {
+    FrameIndexError::Damaged {
+        run: info.run_id.clone(),
+        run_dir: run_dir.to_path_buf(),
+        frame_id: info.frame_id,
+        step: info.step,
+        path: info.path.clone(),
+        reason,
+    }
+}
+
+/// Reads the file of frame `info` (resolved by [`frame`] to `file`) and checks it against the
+/// SHA-256 its index row recorded, so a damaged file is never served or converted as if fine.
+pub fn read_verified(info: &FrameInfo, file: &Path) -> Result<Vec<u8>, FrameIndexError> {
+    // `file` is canonical and inside `<run>/frames/`.
+    let run_dir = file
+        .parent()
+        .and_then(Path::parent)
+        .unwrap_or(file)
+        .to_path_buf();
+    let bytes = std::fs::read(file).map_err(|e| {
+        tracing::warn!(
+            run = info.run_id,
+            frame_id = info.frame_id,
+            "cannot read {}: {e}",
+            file.display()
+        );
+        if e.kind() == std::io::ErrorKind::NotFound {
+            damaged(&run_dir, info, "is missing".into())
+        } else {
+            FrameIndexError::FileUnavailable {
+                run: info.run_id.clone(),
+                frame_id: info.frame_id,
+                reason: e.to_string(),
+            }
+        }
+    })?;
+    let found = crate::storage::checksum::sha256_hex(&bytes);
+    if found != info.sha256 {
+        tracing::warn!(
+            run = info.run_id,
+            frame_id = info.frame_id,
+            path = info.path,
+            "frame file damaged"
+        );
+        return Err(damaged(
+            &run_dir,
+            info,
+            format!(
+                "does not match the SHA-256 recorded when it was written (recorded {}, the \
+                 file's {} bytes hash to {found})",
+                info.sha256,
+                bytes.len()
+            ),
+        ));
+    }
+    Ok(bytes)
 }
 
 /// Resolves an index row's `path` inside the canonical run directory `run_dir`: relative,
