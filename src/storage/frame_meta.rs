@@ -89,6 +89,12 @@ pub struct FrameMeta {
     pub height: u32,
     /// Significant bits per sample of the sensor (raw) or 32 for f32 HDR.
     pub bit_depth: u8,
+    /// Left shift of the samples in the raw PNG (`16 - bit_depth`: MSB-aligned, so viewers
+    /// show the frame; the PNG's sBIT chunk says the same). 0 for HDR frames and for raw
+    /// frames of datasets written before MSB alignment (index schema < 3). The storage writer
+    /// sets it; readers get DN back from [`super::png16::decode_png16`].
+    #[serde(default)]
+    pub sample_shift: u8,
     /// Samples at the sensor's maximum (raw) or saturated in every exposure (HDR).
     pub saturated_samples: u64,
     /// Backend-specific notes, stored verbatim.
@@ -211,6 +217,7 @@ pub(crate) mod tests {
             width: 4,
             height: 3,
             bit_depth: 12,
+            sample_shift: 4,
             saturated_samples: 0,
             notes: serde_json::json!({"renderer": {"spp": 4, "effects": ["diffuse", "specular"]}}),
         }

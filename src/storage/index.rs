@@ -33,9 +33,15 @@ use super::frame_meta::{FrameKind, FrameMeta};
 use super::manifest::Manifest;
 use crate::plan::Plan;
 
-/// Schema version, stored in `PRAGMA user_version`. Version 1 (no `ground_truth` table) is
-/// upgraded in place by [`Index::open`].
-pub const SCHEMA_VERSION: i32 = 2;
+/// Schema version, stored in `PRAGMA user_version`. Versions 1 (no `ground_truth` table) and
+/// 2 (no `frames.sample_shift`) are upgraded in place by [`Index::open`].
+pub const SCHEMA_VERSION: i32 = 3;
+
+/// What schema version 3 added to version 2: the left shift of each raw frame's samples in its
+/// PNG (MSB alignment, see [`super::png16`]). Rows of older datasets get 0: their PNGs hold
+/// the DN unshifted.
+pub const SAMPLE_SHIFT_SCHEMA: &str =
+    "ALTER TABLE frames ADD COLUMN sample_shift INTEGER NOT NULL DEFAULT 0;";
 
 /// What schema version 2 added to version 1: the ground-truth images written beside frames.
 /// One row per image; deleting a frame row deletes its ground truth rows.
@@ -283,6 +289,8 @@ impl Index {
         tx.execute_batch(SCHEMA).map_err(sqlite("create schema"))?;
         tx.execute_batch(GROUND_TRUTH_SCHEMA)
             .map_err(sqlite("create ground truth table"))?;
+        tx.execute_batch(SAMPLE_SHIFT_SCHEMA)
+            .map_err(sqlite("add the sample shift column"))?;
         tx.pragma_update(None, "user_version", SCHEMA_VERSION)
             .map_err(sqlite("set schema version"))?;
         tx.execute(
@@ -322,13 +330,19 @@ impl Index {
             .conn
             .query_row("PRAGMA user_version", [], |row| row.get(0))
             .map_err(index.err("read schema version"))?;
-        if version == 1 {
+        if version == 1 || version == 2 {
+            let ground_truth = if version == 1 {
+                GROUND_TRUTH_SCHEMA
+            } else {
+                ""
+            };
             index
                 .conn
                 .execute_batch(&format!(
-                    "BEGIN; {GROUND_TRUTH_SCHEMA} PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
+                    "BEGIN; {ground_truth} {SAMPLE_SHIFT_SCHEMA} \
+                     PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
                 ))
-                .map_err(index.err("upgrade the schema to version 2"))?;
+                .map_err(index.err("upgrade the schema to version 3"))?;
             return Ok(index);
         }
         if version != SCHEMA_VERSION {
@@ -471,9 +485,10 @@ impl Index {
                             exposure_index, exposure_s, exposures_s, gain, trigger_id, axes_deg,
                             lamps_on, laser_armed, laser_on, laser_colour_nm, laser_tilt_deg,
                             laser_mount_deg, fixture, cart_mm, rig_time_s, wall_time_unix_s, width,
-                            height, bit_depth, saturated_samples, notes)
+                            height, bit_depth, saturated_samples, notes, sample_shift)
                          VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15,
-                            ?16, ?17, ?18, ?19, ?20, ?21, ?22, ?23, ?24, ?25, ?26, ?27, ?28, ?29)",
+                            ?16, ?17, ?18, ?19, ?20, ?21, ?22, ?23, ?24, ?25, ?26, ?27, ?28, ?29,
+                            ?30)",
                     )
                     .map_err(sqlite("prepare frame insert"))?;
                 for (row, (exposures, axes, lamps, notes)) in rows.iter().zip(encoded.iter()) {
@@ -520,6 +535,7 @@ impl Index {
                             m.bit_depth,
                             saturated,
                             notes,
+                            m.sample_shift,
                         ])
                         .map_err(sqlite("insert frame row"))?;
                     let frame_id = tx.last_insert_rowid();
@@ -575,7 +591,8 @@ impl Index {
                 "SELECT path, sha256, size_bytes, step, block, label, camera, kind, exposure_index,
                     exposure_s, exposures_s, gain, trigger_id, axes_deg, lamps_on, laser_armed,
                     laser_on, laser_colour_nm, laser_tilt_deg, laser_mount_deg, fixture, cart_mm,
-                    rig_time_s, wall_time_unix_s, width, height, bit_depth, saturated_samples, notes
+                    rig_time_s, wall_time_unix_s, width, height, bit_depth, saturated_samples, notes,
+                    sample_shift
                  FROM frames WHERE ?1 IS NULL OR step = ?1 ORDER BY step, path",
             )
             .map_err(self.err("query frames"))?;
@@ -613,6 +630,7 @@ impl Index {
                     width: r.get(24)?,
                     height: r.get(25)?,
                     bit_depth: r.get(26)?,
+                    sample_shift: r.get(29)?,
                     saturated_samples: to_u64(27, r.get(27)?)?,
                     notes: serde_json::Value::Null,
                 };

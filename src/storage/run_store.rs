@@ -37,7 +37,7 @@ use super::index::{
 };
 use super::layout;
 use super::manifest::Manifest;
-use super::png16::encode_png16;
+use super::png16::{encode_png16, msb_shift};
 use crate::plan::Plan;
 
 /// How many `-N` suffixes `create` tries before giving up.
@@ -337,8 +337,15 @@ impl RunStore {
     /// (moves, lamp switches) with one fsync instead of one each. Returns the written files.
     pub fn commit_steps(
         &mut self,
-        batch: Vec<(StepRecord, Vec<FrameToWrite>)>,
+        mut batch: Vec<(StepRecord, Vec<FrameToWrite>)>,
     ) -> Result<Vec<PathBuf>> {
+        // Raw samples go MSB-aligned into their PNG; the shift is recorded with the frame.
+        for f in batch.iter_mut().flat_map(|(_, frames)| frames.iter_mut()) {
+            f.meta.sample_shift = match f.meta.kind {
+                FrameKind::Raw => msb_shift(&frame_file_name(&f.meta), f.meta.bit_depth)?,
+                FrameKind::Hdr => 0,
+            };
+        }
         let mut written = Vec::with_capacity(batch.len());
         for (record, frames) in &batch {
             written.push(self.write_frames(record.step, frames)?);
@@ -438,9 +445,14 @@ impl RunStore {
                         source,
                     })?;
                 let bytes = match &f.pixels {
-                    FramePixels::Raw(px) => {
-                        encode_png16(&name, f.meta.width, f.meta.height, px, &json)?
-                    }
+                    FramePixels::Raw(px) => encode_png16(
+                        &name,
+                        f.meta.width,
+                        f.meta.height,
+                        px,
+                        f.meta.bit_depth,
+                        &json,
+                    )?,
                     FramePixels::Hdr(px) => {
                         encode_exr(&name, f.meta.width, f.meta.height, px, &json)?
                     }

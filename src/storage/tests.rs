@@ -99,6 +99,7 @@ fn hdr_frame(step: usize, camera: &str) -> FrameToWrite {
     meta.exposures_s = vec![0.01, 0.02];
     meta.exposure_s = 0.02;
     meta.bit_depth = 32;
+    meta.sample_shift = 0;
     meta.trigger_id = None;
     let n = (meta.width * meta.height * 3) as usize;
     let pixels = (0..n).map(|i| 1.0e5 * i as f32 + 0.125).collect();
@@ -323,11 +324,14 @@ fn png_round_trip_and_identical_bytes_without_wall_time() -> TestResult {
 
     let decoded = decode_png16("t", &bytes_a)?;
     assert_eq!((decoded.width, decoded.height), (meta.width, meta.height));
-    assert_eq!(decoded.pixels, pixels);
+    assert_eq!(decoded.pixels, pixels, "the DN come back exactly");
+    // Stored MSB-aligned (12-bit sensor: shifted by 4, sBIT 12), and the shift is recorded.
+    assert_eq!((decoded.significant_bits, decoded.shift), (12, 4));
     let embedded: serde_json::Value =
         serde_json::from_str(decoded.metadata.as_deref().ok_or("no iTXt")?)?;
     assert_eq!(embedded["camera"], "cam5");
     assert_eq!(embedded["exposure_index"], 1);
+    assert_eq!(embedded["sample_shift"], 4);
     assert!(embedded.get("wall_time_unix_s").is_none());
 
     let mut later = frame;
@@ -337,11 +341,82 @@ fn png_round_trip_and_identical_bytes_without_wall_time() -> TestResult {
     assert_eq!(bytes_a, bytes_b);
     let rows = store.frames(Some(1))?;
     assert_eq!(rows.len(), 1);
+    assert_eq!(rows[0].meta.sample_shift, 4);
     assert_eq!(rows[0].sha256, sha256_hex(&bytes_a));
     assert_eq!(
         rows[0].meta.wall_time_unix_s,
         meta.wall_time_unix_s + 3600.0
     );
+    Ok(())
+}
+
+/// A dataset written before MSB alignment (index schema 2, PNGs with the DN unshifted and no
+/// sBIT) opens, is upgraded to schema 3 with shift 0 in every row, and reads the same DN.
+#[test]
+fn old_datasets_without_sample_shift_still_read() -> TestResult {
+    let tmp = tempfile::tempdir()?;
+    let mut store = RunStore::create(tmp.path(), manifest(), &plan())?;
+    let dir = store.dir().to_path_buf();
+    let frames = step1_frames();
+    store.commit_step(&record(1, 9.5), frames.clone())?;
+    drop(store);
+    // Turn it into what an older stagehand wrote.
+    let conn = rusqlite::Connection::open(dir.join(layout::INDEX))?;
+    for f in &frames {
+        let FramePixels::Raw(px) = &f.pixels else {
+            continue;
+        };
+        let name = frame_file_name(&f.meta);
+        let mut old_meta = f.meta.clone();
+        old_meta.sample_shift = 0;
+        let json = old_meta.embedded_json()?;
+        let bytes = super::png16::encode(&name, 4, 3, px, None, &json)?;
+        fs::write(dir.join("frames").join(&name), &bytes)?;
+        conn.execute(
+            "UPDATE frames SET sha256 = ?1, size_bytes = ?2 WHERE path = ?3",
+            rusqlite::params![
+                sha256_hex(&bytes),
+                bytes.len() as i64,
+                format!("frames/{name}")
+            ],
+        )?;
+    }
+    conn.execute_batch(
+        "DROP VIEW frame_lamps; ALTER TABLE frames DROP COLUMN sample_shift;
+         CREATE VIEW frame_lamps AS
+             SELECT frames.*, j.value AS lamp FROM frames, json_each(frames.lamps_on) AS j;
+         PRAGMA user_version = 2;",
+    )?;
+    drop(conn);
+
+    let (store, _, _) = RunStore::open(&dir)?;
+    let version: i32 = store
+        .index()
+        .conn()
+        .query_row("PRAGMA user_version", [], |r| r.get(0))?;
+    assert_eq!(version, index::SCHEMA_VERSION);
+    let rows = store.frames(Some(1))?;
+    assert_eq!(rows.len(), frames.len());
+    for row in &rows {
+        assert_eq!(row.meta.sample_shift, 0, "{}", row.path);
+        if row.meta.kind != FrameKind::Raw {
+            continue;
+        }
+        let written = frames
+            .iter()
+            .find(|f| format!("frames/{}", frame_file_name(&f.meta)) == row.path)
+            .ok_or("a written frame")?;
+        let decoded = decode_png16(&row.path, &fs::read(dir.join(&row.path))?)?;
+        assert_eq!(FramePixels::Raw(decoded.pixels), written.pixels);
+        assert_eq!(decoded.shift, 0);
+    }
+    // The lamp view still works on the upgraded index.
+    let n: i64 = store.index().conn().query_row(
+        "SELECT count(*) FROM frame_lamps WHERE lamp = 'lamp3' AND sample_shift = 0",
+        [],
+        |r| r.get(0),
+    )?;
+    assert_eq!(n, frames.len() as i64);
     Ok(())
 }
 
