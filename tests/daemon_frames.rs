@@ -781,6 +781,35 @@ async fn damaged_frame_files_are_refused_with_a_repair_hint() {
                 );
             }
         }
+        // The run's verify report names every damaged file and the steps to retake.
+        let report = api.get(&format!("/api/runs/{run}/verify"));
+        assert_eq!(report.status, 200, "{}", report.text());
+        let report = report.json();
+        assert_eq!(report["ok"], false, "{report}");
+        let problems = report["problems"].as_array().cloned().unwrap_or_default();
+        let mut steps = Vec::new();
+        for (id, path, how) in &d.damaged_frames {
+            let p = problems
+                .iter()
+                .find(|p| p["path"] == path.as_str())
+                .unwrap_or_else(|| panic!("{how}: {path} not in {report}"));
+            assert_eq!(p["frame_id"], *id, "{how}");
+            steps.push(p["step"].as_u64().expect("step"));
+        }
+        steps.sort();
+        steps.dedup();
+        assert_eq!(report["retake_steps"], serde_json::json!(steps));
+        let command = report["retake_command"].as_str().unwrap_or("");
+        assert!(
+            command.starts_with("stagehand resume --retake "),
+            "{command}"
+        );
+        // The intact original verifies clean.
+        let clean = api.get(&format!("/api/runs/{}/verify", d.run_id)).json();
+        assert_eq!(clean["ok"], true, "{clean}");
+        assert_eq!(clean["files_checked"], 80);
+        assert_eq!(api.get("/api/runs/no-such-run/verify").status, 404);
+
         // An intact frame of the same run is still served.
         let intact: i64 = db(d)
             .query_row(

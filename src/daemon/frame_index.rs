@@ -8,10 +8,10 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::time::{Duration, UNIX_EPOCH};
+use std::time::UNIX_EPOCH;
 
 use rusqlite::types::Value;
-use rusqlite::{Connection, OpenFlags, OptionalExtension, Row};
+use rusqlite::{Connection, OptionalExtension, Row};
 use serde::Serialize;
 use utoipa::ToSchema;
 
@@ -206,42 +206,10 @@ pub fn run_dir(runs_dir: &Path, run_id: &str) -> Result<PathBuf, FrameIndexError
     Ok(canon)
 }
 
-/// Opens a run's index read-only. While a writer has the index open its `-wal` file exists
-/// and this is an ordinary WAL reader (it sees the last committed step). When there is no
-/// `-wal` (no writer since the last clean close) the file is opened `immutable`, because a
-/// read-only WAL reader would otherwise leave `-shm`/`-wal` files behind in the run directory.
+/// Opens a run's index read-only ([`crate::storage::index::open_read_only`]: never blocks or
+/// disturbs a writer and leaves no files behind).
 pub fn open_index(run_dir: &Path, run_id: &str) -> Result<Connection, FrameIndexError> {
-    let err = index_err(run_id);
-    let path = run_dir.join(INDEX);
-    let flags = OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX;
-    let quiescent = !run_dir.join(format!("{INDEX}-wal")).exists();
-    let conn = if quiescent {
-        Connection::open_with_flags(
-            format!("file:{}?immutable=1", uri_path(&path)),
-            flags | OpenFlags::SQLITE_OPEN_URI,
-        )
-    } else {
-        Connection::open_with_flags(&path, flags)
-    }
-    .map_err(&err)?;
-    conn.busy_timeout(Duration::from_secs(5)).map_err(&err)?;
-    conn.execute_batch("PRAGMA query_only = ON;")
-        .map_err(&err)?;
-    Ok(conn)
-}
-
-/// A file path percent-encoded for an SQLite `file:` URI.
-fn uri_path(path: &Path) -> String {
-    use std::os::unix::ffi::OsStrExt;
-    let mut out = String::new();
-    for &b in path.as_os_str().as_bytes() {
-        if b.is_ascii_alphanumeric() || b"/-_.~".contains(&b) {
-            out.push(char::from(b));
-        } else {
-            out.push_str(&format!("%{b:02X}"));
-        }
-    }
-    out
+    crate::storage::index::open_read_only(run_dir).map_err(index_err(run_id))
 }
 
 fn index_err(run_id: &str) -> impl Fn(rusqlite::Error) -> FrameIndexError + '_ {

@@ -163,17 +163,23 @@ pub struct FrameToWrite {
 /// `s{step:06}_{camera}_hdr.exr` for HDR frames. The camera id is sanitised to
 /// `[A-Za-z0-9_-]`; a raw frame without an exposure index is named `e0`.
 pub fn frame_file_name(meta: &FrameMeta) -> String {
-    let camera = sanitize(&meta.camera, "camera");
     match meta.kind {
-        FrameKind::Raw => {
-            format!(
-                "s{:06}_{camera}_e{}.png",
-                meta.step,
-                meta.exposure_index.unwrap_or(0)
-            )
-        }
-        FrameKind::Hdr => format!("s{:06}_{camera}_hdr.exr", meta.step),
+        FrameKind::Raw => raw_file_name(meta.step, &meta.camera, meta.exposure_index.unwrap_or(0)),
+        FrameKind::Hdr => hdr_file_name(meta.step, &meta.camera),
     }
+}
+
+/// [`frame_file_name`] of raw exposure `exposure_index` of `camera` in step `step`.
+pub fn raw_file_name(step: usize, camera: &str, exposure_index: usize) -> String {
+    format!(
+        "s{step:06}_{}_e{exposure_index}.png",
+        sanitize(camera, "camera")
+    )
+}
+
+/// [`frame_file_name`] of the HDR merge of `camera`'s bracket in step `step`.
+pub fn hdr_file_name(step: usize, camera: &str) -> String {
+    format!("s{step:06}_{}_hdr.exr", sanitize(camera, "camera"))
 }
 
 /// File name of a ground-truth image of a frame: the frame's file stem, then the plane kind

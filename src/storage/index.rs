@@ -583,6 +583,49 @@ impl Index {
         tx.commit().map_err(sqlite("commit steps"))
     }
 
+    /// Makes `steps` pending again in ONE transaction: deletes their frame and ground-truth
+    /// rows and clears their journal times. Returns the paths of the deleted rows' files
+    /// (relative to the run directory), which the caller removes after the commit.
+    pub(crate) fn reset_steps(&mut self, steps: &[usize]) -> Result<Vec<String>> {
+        let path = self.path.clone();
+        let sqlite = |what| sql_err(&path, what);
+        let tx = self.conn.transaction().map_err(sqlite("begin retake"))?;
+        let mut files = Vec::new();
+        for &step in steps {
+            let step = to_i64(step);
+            for sql in [
+                "SELECT path FROM ground_truth WHERE step = ?1",
+                "SELECT path FROM frames WHERE step = ?1",
+            ] {
+                let mut q = tx
+                    .prepare_cached(sql)
+                    .map_err(sqlite("list retaken files"))?;
+                let rows = q
+                    .query_map([step], |r| r.get::<_, String>(0))
+                    .map_err(sqlite("list retaken files"))?;
+                for row in rows {
+                    files.push(row.map_err(sqlite("list retaken files"))?);
+                }
+            }
+            tx.prepare_cached("DELETE FROM ground_truth WHERE step = ?1")
+                .and_then(|mut q| q.execute([step]))
+                .map_err(sqlite("delete retaken ground truth rows"))?;
+            tx.prepare_cached("DELETE FROM frames WHERE step = ?1")
+                .and_then(|mut q| q.execute([step]))
+                .map_err(sqlite("delete retaken frame rows"))?;
+            tx.prepare_cached(
+                "UPDATE steps SET status = 'pending', rig_time_start_s = NULL,
+                    rig_time_end_s = NULL, wall_time_unix_s = NULL WHERE idx = ?1",
+            )
+            .and_then(|mut q| q.execute([step]))
+            .map_err(sqlite("mark retaken step pending"))?;
+        }
+        tx.execute("UPDATE runs SET updated_unix_s = ?1", [now_unix_s()])
+            .map_err(sqlite("touch run row"))?;
+        tx.commit().map_err(sqlite("commit retake"))?;
+        Ok(files)
+    }
+
     /// Frame rows, of one step or all, ordered by step and path.
     pub(crate) fn frames(&self, step: Option<usize>) -> Result<Vec<StoredFrame>> {
         let mut stmt = self
@@ -709,6 +752,45 @@ impl Index {
     pub(crate) fn conn(&self) -> &Connection {
         &self.conn
     }
+}
+
+/// Opens the index of the run at `run_dir` read-only, for readers that must not take the
+/// run's write lock (the daemon's listings, `stagehand verify`). While a writer has the index
+/// open its `-wal` file exists and this is an ordinary WAL reader (it sees the last committed
+/// step). When there is no `-wal` (no writer since the last clean close) the file is opened
+/// `immutable`, because a read-only WAL reader would otherwise leave `-shm`/`-wal` files
+/// behind in the run directory.
+pub fn open_read_only(run_dir: &Path) -> rusqlite::Result<Connection> {
+    let path = run_dir.join(super::layout::INDEX);
+    let flags = OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX;
+    let quiescent = !run_dir
+        .join(format!("{}-wal", super::layout::INDEX))
+        .exists();
+    let conn = if quiescent {
+        Connection::open_with_flags(
+            format!("file:{}?immutable=1", uri_path(&path)),
+            flags | OpenFlags::SQLITE_OPEN_URI,
+        )
+    } else {
+        Connection::open_with_flags(&path, flags)
+    }?;
+    conn.busy_timeout(std::time::Duration::from_secs(5))?;
+    conn.execute_batch("PRAGMA query_only = ON;")?;
+    Ok(conn)
+}
+
+/// A file path percent-encoded for an SQLite `file:` URI.
+fn uri_path(path: &Path) -> String {
+    use std::os::unix::ffi::OsStrExt;
+    let mut out = String::new();
+    for &b in path.as_os_str().as_bytes() {
+        if b.is_ascii_alphanumeric() || b"/-_.~".contains(&b) {
+            out.push(char::from(b));
+        } else {
+            out.push_str(&format!("%{b:02X}"));
+        }
+    }
+    out
 }
 
 /// Converts a count or index to SQLite's integer (saturating: no plan or image gets near 2⁶³).

@@ -477,6 +477,64 @@ impl RunStore {
         Ok(written)
     }
 
+    /// Prepares capture steps for `stagehand resume --retake` (after `stagehand verify` found
+    /// their files damaged): in ONE transaction, deletes the frame and ground-truth rows of
+    /// `steps` and marks them pending, together with every frameless step (moves, lamps,
+    /// laser, prompts) between the first and the last of them, so the resumed run brings the
+    /// rig into each retaken step's state exactly as the plan had it. Then removes the deleted
+    /// rows' files (a file left behind is an orphan that the retake replaces). Captures that
+    /// are not retaken stay done, with their frames.
+    ///
+    /// Every step must be a capture step of `plan`. Returns the steps made pending, in order.
+    pub fn retake(&mut self, plan: &Plan, steps: &[usize]) -> Result<Vec<usize>> {
+        let is_capture = |i: usize| {
+            plan.steps
+                .get(i)
+                .is_some_and(|s| matches!(s.action, crate::plan::Action::Capture { .. }))
+        };
+        for &step in steps {
+            let reason = match plan.steps.get(step) {
+                None => format!(
+                    "the plan has steps 0..={}",
+                    plan.steps.len().saturating_sub(1)
+                ),
+                Some(s) if !is_capture(step) => format!(
+                    "it is a `{}` step, which records no frames; only capture steps are retaken",
+                    s.action.kind()
+                ),
+                Some(_) => continue,
+            };
+            return Err(StorageError::InvalidRetake {
+                step,
+                run: self.dir.clone(),
+                reason,
+            });
+        }
+        let (Some(&first), Some(&last)) = (steps.iter().min(), steps.iter().max()) else {
+            return Ok(Vec::new());
+        };
+        let wanted: BTreeSet<usize> = steps.iter().copied().collect();
+        // Skipped steps do not act on the rig: re-run the frameless ones between retakes so
+        // each retaken capture finds the lamps, laser, axes and fixture of the original.
+        let reset: Vec<usize> = (first..=last)
+            .filter(|&i| wanted.contains(&i) || !is_capture(i))
+            .collect();
+        let files = self.index.reset_steps(&reset)?;
+        for rel in files {
+            let path = self.dir.join(&rel);
+            match fs::remove_file(&path) {
+                Ok(()) => {}
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+                Err(e) => {
+                    tracing::warn!(path = %path.display(), error = %e, "could not remove a retaken file; the retake replaces it");
+                }
+            }
+        }
+        fsync_dir(&self.frames_dir)?;
+        tracing::info!(dir = %self.dir.display(), ?steps, pending = reset.len(), "steps reset for a retake");
+        Ok(reset)
+    }
+
     /// Sets the run status (and an optional message, e.g. the error that failed the run).
     pub fn set_status(&self, status: RunStatus, message: Option<&str>) -> Result<()> {
         self.index.set_status(status, message)

@@ -6,6 +6,7 @@ mod frames;
 mod runs;
 mod scripts;
 mod status;
+mod verify;
 
 use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
 use utoipa::{Modify, OpenApi};
@@ -107,4 +108,5 @@ pub fn routes() -> OpenApiRouter<AppState> {
         .merge(scripts::routes())
         .merge(runs::routes())
         .merge(frames::routes())
+        .merge(verify::routes())
 }
