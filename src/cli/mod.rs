@@ -206,11 +206,7 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
             let violations = crate::validate::validate(&plan, &rig.spec);
             let estimate = crate::estimate::estimate(&plan, &rig.spec);
             if json {
-                println!(
-                    "{}",
-                    serde_json::to_string_pretty(&plan)
-                        .map_err(|e| SessionError::Io(e.to_string()))?
-                );
+                print_json(&plan)?;
             } else {
                 let renderer = renderer_line(&rig.spec);
                 print!(
@@ -286,11 +282,7 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
         Command::Verify { run_dir, json } => {
             let report = crate::storage::verify::verify_run(&run_dir)?;
             if json {
-                println!(
-                    "{}",
-                    serde_json::to_string_pretty(&report)
-                        .map_err(|e| SessionError::Io(e.to_string()))?
-                );
+                print_json(&report)?;
             } else {
                 print!("{}", report.render());
             }
@@ -329,6 +321,13 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
             report(&run_dir, started, result)
         }
     }
+}
+
+/// Prints `value` as pretty JSON on stdout (`--json`).
+fn print_json(value: &impl serde::Serialize) -> Result<(), SessionError> {
+    let text = serde_json::to_string_pretty(value).map_err(|e| SessionError::Io(e.to_string()))?;
+    println!("{text}");
+    Ok(())
 }
 
 /// The emulators' port links go in a fresh directory under the system's temp dir.

@@ -398,7 +398,7 @@ pub fn frame(
         tracing::warn!(run = run_id, frame_id, "frame file refused: {reason}");
         let gone = std::fs::symlink_metadata(dir.join(&info.path))
             .is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound);
-        if gone && frame_file_name_is_plain(&info.path) {
+        if gone && crate::storage::layout::is_frame_path(&info.path) {
             damaged(&dir, &info, "is missing".into())
         } else {
             FrameIndexError::FileUnavailable {
@@ -409,17 +409,6 @@ pub fn frame(
         }
     })?;
     Ok((info, file))
-}
-
-/// True for an index path of the form `frames/<name>` (one plain file name under `frames/`),
-/// the only paths stagehand writes.
-fn frame_file_name_is_plain(rel: &str) -> bool {
-    let mut parts = Path::new(rel).components();
-    matches!(
-        (parts.next(), parts.next(), parts.next()),
-        (Some(std::path::Component::Normal(d)), Some(std::path::Component::Normal(_)), None)
-            if d == FRAMES_DIR
-    )
 }
 
 /// A [`FrameIndexError::Damaged`] for the frame `info` of the run at `run_dir`.

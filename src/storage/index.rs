@@ -471,12 +471,7 @@ impl Index {
                 }
                 Some(_) => {}
             }
-            tx.prepare_cached("DELETE FROM ground_truth WHERE step = ?1")
-                .and_then(|mut q| q.execute([step]))
-                .map_err(sqlite("delete old ground truth rows"))?;
-            tx.prepare_cached("DELETE FROM frames WHERE step = ?1")
-                .and_then(|mut q| q.execute([step]))
-                .map_err(sqlite("delete old frame rows"))?;
+            delete_step_rows(&tx, step).map_err(sqlite("delete old frame rows"))?;
             {
                 let mut insert = tx
                     .prepare_cached(
@@ -607,12 +602,7 @@ impl Index {
                     files.push(row.map_err(sqlite("list retaken files"))?);
                 }
             }
-            tx.prepare_cached("DELETE FROM ground_truth WHERE step = ?1")
-                .and_then(|mut q| q.execute([step]))
-                .map_err(sqlite("delete retaken ground truth rows"))?;
-            tx.prepare_cached("DELETE FROM frames WHERE step = ?1")
-                .and_then(|mut q| q.execute([step]))
-                .map_err(sqlite("delete retaken frame rows"))?;
+            delete_step_rows(&tx, step).map_err(sqlite("delete retaken frame rows"))?;
             tx.prepare_cached(
                 "UPDATE steps SET status = 'pending', rig_time_start_s = NULL,
                     rig_time_end_s = NULL, wall_time_unix_s = NULL WHERE idx = ?1",
@@ -752,6 +742,15 @@ impl Index {
     pub(crate) fn conn(&self) -> &Connection {
         &self.conn
     }
+}
+
+/// Deletes the frame rows of `step` and the ground-truth rows beside them.
+fn delete_step_rows(tx: &Transaction<'_>, step: i64) -> rusqlite::Result<()> {
+    tx.prepare_cached("DELETE FROM ground_truth WHERE step = ?1")?
+        .execute([step])?;
+    tx.prepare_cached("DELETE FROM frames WHERE step = ?1")?
+        .execute([step])?;
+    Ok(())
 }
 
 /// Opens the index of the run at `run_dir` read-only, for readers that must not take the

@@ -215,14 +215,7 @@ impl RunStore {
                 missing: "the directory itself",
             });
         }
-        let manifest_path = dir.join(layout::MANIFEST);
-        let manifest_bytes = read_required(&dir, layout::MANIFEST)?;
-        let manifest: Manifest =
-            serde_json::from_slice(&manifest_bytes).map_err(|source| StorageError::Json {
-                op: "decode",
-                path: manifest_path,
-                source,
-            })?;
+        let manifest = read_manifest(&dir)?;
         if manifest.format_version > Manifest::FORMAT_VERSION {
             return Err(StorageError::UnsupportedFormat {
                 path: dir,
@@ -628,6 +621,16 @@ fn write_ground_truth(
             })
         })
         .collect()
+}
+
+/// Reads and decodes the run's `manifest.json`; a directory without one is not a run.
+pub(crate) fn read_manifest(dir: &Path) -> Result<Manifest> {
+    let bytes = read_required(dir, layout::MANIFEST)?;
+    serde_json::from_slice(&bytes).map_err(|source| StorageError::Json {
+        op: "decode",
+        path: dir.join(layout::MANIFEST),
+        source,
+    })
 }
 
 /// Reads a file the run layout requires, or says the directory is not a complete run.

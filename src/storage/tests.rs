@@ -566,3 +566,62 @@ fn inconsistent_commits_are_refused() -> TestResult {
     assert_eq!(frame_row_count(&store)?, 0);
     Ok(())
 }
+
+/// Verification against the plan: a done capture step missing a frame its plan step asks for,
+/// a frame no plan step asks for, and a stray file are each reported, with the steps to retake.
+#[test]
+fn verify_checks_the_index_against_the_plan() -> TestResult {
+    let tmp = tempfile::tempdir()?;
+    let mut store = RunStore::create(tmp.path(), manifest(), &plan())?;
+    let dir = store.dir().to_path_buf();
+    let home = StepRecord {
+        kind: "home".into(),
+        ..record(0, 4.0)
+    };
+    store.commit_step(&home, Vec::new())?;
+    // Step 1 asks for cam5 and cam6, two exposures each, and both cameras' HDR merges.
+    let mut step1 = step1_frames();
+    step1.push(hdr_frame(1, "cam6"));
+    store.commit_step(&record(1, 9.5), step1)?;
+    let report = verify::verify_run(&dir)?;
+    assert!(report.ok, "{}", report.render());
+    assert_eq!(report.files_checked, 6);
+
+    // Step 2 asks for cam5 only: without its HDR merge, and with a cam7 frame.
+    store.commit_step(
+        &record(2, 12.0),
+        vec![
+            raw_frame(2, "cam5", 0, &[]),
+            raw_frame(2, "cam5", 1, &[]),
+            raw_frame(2, "cam7", 0, &[]),
+        ],
+    )?;
+    fs::write(dir.join("notes.txt"), "mine")?;
+    let report = verify::verify_run(&dir)?;
+    let found: Vec<(verify::ProblemKind, Option<&str>, Option<usize>)> = report
+        .problems
+        .iter()
+        .map(|p| (p.kind, p.path.as_deref(), p.step))
+        .collect();
+    assert_eq!(
+        found,
+        vec![
+            (verify::ProblemKind::StrayFile, Some("notes.txt"), None),
+            (
+                verify::ProblemKind::MissingFrame,
+                Some("frames/s000002_cam5_hdr.exr"),
+                Some(2)
+            ),
+            (
+                verify::ProblemKind::UnplannedFrame,
+                Some("frames/s000002_cam7_e0.png"),
+                Some(2)
+            ),
+        ]
+    );
+    assert_eq!(report.retake_steps, vec![2]);
+    let command = format!("stagehand resume --retake 2 {}", dir.display());
+    assert_eq!(report.retake_command.as_deref(), Some(command.as_str()));
+    assert!(report.render().contains(&format!("repair: {command}")));
+    Ok(())
+}

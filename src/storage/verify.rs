@@ -21,7 +21,7 @@
 
 use std::collections::{BTreeMap, BTreeSet, HashSet};
 use std::fs;
-use std::path::{Component, Path};
+use std::path::Path;
 
 use rayon::prelude::*;
 use serde::Serialize;
@@ -151,23 +151,7 @@ struct IndexContents {
 /// Errors only when `run_dir` is not a run directory at all (no manifest or index) or the
 /// manifest cannot be read; everything else is a [`Problem`] in the report.
 pub fn verify_run(run_dir: &Path) -> Result<VerifyReport> {
-    let manifest_path = run_dir.join(layout::MANIFEST);
-    let manifest_bytes = match fs::read(&manifest_path) {
-        Ok(b) => b,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-            return Err(StorageError::NotARun {
-                path: run_dir.to_path_buf(),
-                missing: layout::MANIFEST,
-            });
-        }
-        Err(e) => return Err(StorageError::io("read", manifest_path, e)),
-    };
-    let manifest: Manifest =
-        serde_json::from_slice(&manifest_bytes).map_err(|source| StorageError::Json {
-            op: "decode",
-            path: manifest_path,
-            source,
-        })?;
+    let manifest = super::run_store::read_manifest(run_dir)?;
     if !run_dir.join(layout::INDEX).is_file() {
         return Err(StorageError::NotARun {
             path: run_dir.to_path_buf(),
@@ -253,10 +237,20 @@ pub fn verify_run(run_dir: &Path) -> Result<VerifyReport> {
     })
 }
 
-/// `stagehand resume --retake 3,7 RUN_DIR`: the command that captures `steps` again.
+/// `stagehand resume --retake 3,7 RUN_DIR`: the command that captures `steps` again, with the
+/// directory quoted for a POSIX shell when it needs it.
 pub fn retake_command(steps: &[usize], run_dir: &str) -> String {
     let list: Vec<String> = steps.iter().map(usize::to_string).collect();
-    format!("stagehand resume --retake {} {run_dir}", list.join(","))
+    let plain = !run_dir.is_empty()
+        && run_dir
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "/._-+:@,".contains(c));
+    let dir = if plain {
+        run_dir.to_string()
+    } else {
+        format!("'{}'", run_dir.replace('\'', r"'\''"))
+    };
+    format!("stagehand resume --retake {} {dir}", list.join(","))
 }
 
 /// True when step `step` of `plan` is a capture.
@@ -382,15 +376,6 @@ fn to_usize(v: i64) -> usize {
     usize::try_from(v).unwrap_or(usize::MAX)
 }
 
-/// True for `frames/<name>`: the only paths stagehand records.
-fn is_frames_path(rel: &str) -> bool {
-    let mut parts = Path::new(rel).components();
-    matches!(
-        (parts.next(), parts.next(), parts.next()),
-        (Some(Component::Normal(dir)), Some(Component::Normal(_)), None) if dir == layout::FRAMES_DIR
-    )
-}
-
 /// Checks one recorded file: path, presence, size, SHA-256, decoding. Returns the bytes read
 /// and the problem, if any.
 fn check_file(run_dir: &Path, r: &Recorded) -> (u64, Option<Problem>) {
@@ -405,7 +390,7 @@ fn check_file(run_dir: &Path, r: &Recorded) -> (u64, Option<Problem>) {
         Format::ExrPlanes => "ground-truth file",
         _ => "frame file",
     };
-    if !is_frames_path(&r.path) {
+    if !layout::is_frame_path(&r.path) {
         return (
             0,
             Some(problem(
@@ -769,5 +754,22 @@ impl VerifyReport {
             out.push_str(&format!("repair: {cmd}\n"));
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn retake_commands_are_ready_to_paste() {
+        assert_eq!(
+            retake_command(&[3, 7], "runs/quickstart-20261201-101500-1a2b3c4d"),
+            "stagehand resume --retake 3,7 runs/quickstart-20261201-101500-1a2b3c4d"
+        );
+        assert_eq!(
+            retake_command(&[1], "/data/my run's dir"),
+            r"stagehand resume --retake 1 '/data/my run'\''s dir'"
+        );
     }
 }
