@@ -350,14 +350,17 @@ fn png_round_trip_and_identical_bytes_without_wall_time() -> TestResult {
     Ok(())
 }
 
-/// A dataset written before MSB alignment (index schema 2, PNGs with the DN unshifted and no
-/// sBIT) opens, is upgraded to schema 3 with shift 0 in every row, and reads the same DN.
+/// A dataset written before MSB alignment and ground truth (index schema 1, PNGs with the DN
+/// unshifted and no sBIT) verifies clean, opens, is upgraded to schema 3 with shift 0 in every
+/// row, and reads the same DN.
 #[test]
 fn old_datasets_without_sample_shift_still_read() -> TestResult {
     let tmp = tempfile::tempdir()?;
     let mut store = RunStore::create(tmp.path(), manifest(), &plan())?;
     let dir = store.dir().to_path_buf();
-    let frames = step1_frames();
+    // Every frame step 1 of the plan asks for, so the dataset verifies clean.
+    let mut frames = step1_frames();
+    frames.push(hdr_frame(1, "cam6"));
     store.commit_step(&record(1, 9.5), frames.clone())?;
     drop(store);
     // Turn it into what an older stagehand wrote.
@@ -385,9 +388,13 @@ fn old_datasets_without_sample_shift_still_read() -> TestResult {
         "DROP VIEW frame_lamps; ALTER TABLE frames DROP COLUMN sample_shift;
          CREATE VIEW frame_lamps AS
              SELECT frames.*, j.value AS lamp FROM frames, json_each(frames.lamps_on) AS j;
-         PRAGMA user_version = 2;",
+         DROP TABLE ground_truth;
+         PRAGMA user_version = 1;",
     )?;
     drop(conn);
+    let report = verify::verify_run(&dir)?;
+    assert!(report.ok, "{}", report.render());
+    assert_eq!(report.files_checked, frames.len());
 
     let (store, _, _) = RunStore::open(&dir)?;
     let version: i32 = store

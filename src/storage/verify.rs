@@ -348,6 +348,20 @@ fn read_index(run_dir: &Path) -> rusqlite::Result<IndexContents> {
         });
         frames.push(FrameRow { id, step, path });
     }
+    // Schema 1 (datasets from before ground truth) has no ground_truth table.
+    let has_ground_truth: bool = conn.query_row(
+        "SELECT count(*) > 0 FROM sqlite_master WHERE type = 'table' AND name = 'ground_truth'",
+        [],
+        |r| r.get(0),
+    )?;
+    if !has_ground_truth {
+        return Ok(IndexContents {
+            status,
+            steps,
+            frames,
+            recorded,
+        });
+    }
     let mut stmt = conn
         .prepare("SELECT frame_id, step, path, sha256, size_bytes FROM ground_truth ORDER BY id")?;
     let rows = stmt.query_map([], |r| {
