@@ -432,24 +432,24 @@ pub fn read_verified(info: &FrameInfo, file: &Path) -> Result<Vec<u8>, FrameInde
         .and_then(Path::parent)
         .unwrap_or(file)
         .to_path_buf();
-    let bytes = std::fs::read(file).map_err(|e| {
-        tracing::warn!(
-            run = info.run_id,
-            frame_id = info.frame_id,
-            "cannot read {}: {e}",
-            file.display()
-        );
-        if e.kind() == std::io::ErrorKind::NotFound {
-            damaged(&run_dir, info, "is missing".into())
-        } else {
-            FrameIndexError::FileUnavailable {
-                run: info.run_id.clone(),
-                frame_id: info.frame_id,
-                reason: e.to_string(),
+    let (bytes, found) =
+        crate::storage::checksum::read_hashed(file, info.size_bytes).map_err(|e| {
+            tracing::warn!(
+                run = info.run_id,
+                frame_id = info.frame_id,
+                "cannot read {}: {e}",
+                file.display()
+            );
+            if e.kind() == std::io::ErrorKind::NotFound {
+                damaged(&run_dir, info, "is missing".into())
+            } else {
+                FrameIndexError::FileUnavailable {
+                    run: info.run_id.clone(),
+                    frame_id: info.frame_id,
+                    reason: e.to_string(),
+                }
             }
-        }
-    })?;
-    let found = crate::storage::checksum::sha256_hex(&bytes);
+        })?;
     if found != info.sha256 {
         tracing::warn!(
             run = info.run_id,

@@ -12,8 +12,9 @@
 //! - **directory against the layout**: no leftover temp files and no files the run does not
 //!   know (in the run directory or in `frames/`).
 //!
-//! Files are checked in parallel (rayon); each is read once, and its size is compared before
-//! it is read, so a truncated file costs no hashing. Damaged, missing or unplanned frames of
+//! Files are checked in parallel (rayon); each is read once, hashed chunk by chunk as it is
+//! read ([`super::checksum::read_hashed`]) and decoded from that one read, and its size is
+//! compared before it is read, so a truncated file costs no hashing. Damaged, missing or unplanned frames of
 //! a capture step are repaired by capturing the step again: the report lists those steps and
 //! the exact `stagehand resume --retake` command. The index is opened read-only
 //! ([`super::index::open_read_only`]): verifying never takes the run's write lock, so a run
@@ -28,7 +29,7 @@ use serde::Serialize;
 use utoipa::ToSchema;
 
 use super::atomic::is_temp_name;
-use super::checksum::sha256_hex;
+use super::checksum::{read_hashed, sha256_hex};
 use super::error::{Result, StorageError};
 use super::exr_hdr::decode_exr;
 use super::exr_planes::decode_exr_planes;
@@ -464,8 +465,8 @@ fn check_file(run_dir: &Path, r: &Recorded) -> (u64, Option<Problem>) {
             )),
         );
     }
-    let bytes = match fs::read(&path) {
-        Ok(b) => b,
+    let (bytes, found) = match read_hashed(&path, r.size_bytes) {
+        Ok(read) => read,
         Err(e) => {
             return (
                 0,
@@ -477,7 +478,6 @@ fn check_file(run_dir: &Path, r: &Recorded) -> (u64, Option<Problem>) {
         }
     };
     let n = bytes.len() as u64;
-    let found = sha256_hex(&bytes);
     if found != r.sha256 {
         return (
             n,
