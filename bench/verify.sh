@@ -18,3 +18,7 @@ for i in 1 2 3; do
   end=$(date +%s.%N)
   echo "stagehand verify (CLI, run $i): $(python3 -c "print(f'{$end - $start:.2f}')") s; $(head -1 "$keep/report.txt")"
 done
+start=$(date +%s.%N)
+(cd "$run_dir" && find frames -type f -print0 | xargs -0 sha256sum > /dev/null)
+end=$(date +%s.%N)
+echo "sha256sum over the same files: $(python3 -c "print(f'{$end - $start:.2f}')") s"
