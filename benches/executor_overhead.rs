@@ -5,16 +5,16 @@
 //! Run: `cargo bench --bench executor_overhead` (or `bench/run.sh`, which also runs the
 //! Bluesky peer and prints the ratio). Prints one JSON object per measurement.
 
-use std::collections::BTreeMap;
-use std::sync::Arc;
-use std::time::Instant;
+mod support;
 
-use stagehand::executor::{AutoConfirm, RunControl};
-use stagehand::plan::{Action, Plan, SourcePos, Step};
+use std::collections::BTreeMap;
+
+use stagehand::plan::{Action, Plan};
 use stagehand::rig::RigSource;
 use stagehand::script::ScriptSource;
-use stagehand::session::{self, Prepared, Wiring};
+use stagehand::session::{self, Prepared};
 use stagehand_devices::rig::BUILTIN_LIGHTSTAGE;
+use support::step;
 
 /// The built-in light stage with `w`×`h` cameras and `sample` on the turntable.
 fn rig(w: u32, h: u32, sample: &str) -> RigSource {
@@ -23,15 +23,6 @@ fn rig(w: u32, h: u32, sample: &str) -> RigSource {
         .replace("height = 768", &format!("height = {h}"))
         .replace("sample = \"bumps\"", &format!("sample = \"{sample}\""));
     RigSource::from_text(&text, "bench:lightstage").expect("rig")
-}
-
-fn step(index: usize, action: Action) -> Step {
-    Step {
-        index,
-        block: "bench".into(),
-        at: SourcePos { line: 1, col: 1 },
-        action,
-    }
 }
 
 /// `n` steps: alternating small turntable moves and lamp switches, plus (with `capture_every`)
@@ -72,25 +63,10 @@ struct Measured {
 }
 
 fn run(prepared: Prepared, out: &std::path::Path) -> Measured {
-    let runtime = session::runtime_for(&prepared.rig).expect("runtime");
     let estimated_s = prepared.estimate.rig_time_s;
-    let store = session::create_run(&prepared, out, 1).expect("run dir");
-    let started = Instant::now();
-    let summary = runtime
-        .block_on(async move {
-            let (events, _) = tokio::sync::broadcast::channel(1024);
-            let wiring = Wiring {
-                events,
-                control: RunControl::new(),
-                operator: Arc::new(AutoConfirm),
-                reserve_bytes: 0,
-            };
-            let rig = session::open_rig(&prepared.rig, 1, None)?;
-            session::run(prepared, store, rig, wiring).await
-        })
-        .expect("run");
+    let (_, summary, wall_s) = support::run(prepared, out);
     Measured {
-        wall_s: started.elapsed().as_secs_f64(),
+        wall_s,
         rig_s: summary.rig_time_s,
         estimated_s,
         frames: summary.frames_written,

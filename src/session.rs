@@ -53,7 +53,8 @@ impl SessionError {
                 | StorageError::NotARun { .. }
                 | StorageError::UnsupportedFormat { .. }
                 | StorageError::PlanHashMismatch { .. }
-                | StorageError::RunInUse { .. },
+                | StorageError::RunInUse { .. }
+                | StorageError::InvalidRetake { .. },
             ) => 2,
             _ => 1,
         }

@@ -34,6 +34,9 @@ struct Dataset {
     /// A copy of the run whose index rows / files point outside it: (frame id, how).
     evil_id: String,
     evil_frames: Vec<(i64, &'static str)>,
+    /// A copy of the run with damaged frame files: (frame id, its path, how).
+    damaged_id: String,
+    damaged_frames: Vec<(i64, String, &'static str)>,
 }
 
 fn dataset() -> &'static Dataset {
@@ -128,6 +131,7 @@ fn make_dataset() -> Dataset {
     let elsewhere = tmp.path().join("elsewhere");
     copy_dir(&run_dir, &elsewhere);
     std::os::unix::fs::symlink(&elsewhere, runs.join("linked-run")).expect("link run");
+    let (damaged_id, damaged_frames) = damage_a_copy(&run_dir, &runs);
     Dataset {
         _tmp: tmp,
         data,
@@ -135,7 +139,37 @@ fn make_dataset() -> Dataset {
         run_dir,
         evil_id,
         evil_frames,
+        damaged_id,
+        damaged_frames,
     }
+}
+
+/// Copies the run to `damaged-run` and damages frame files there: a raw PNG replaced by
+/// garbage, an HDR EXR with one flipped byte, a raw PNG deleted.
+fn damage_a_copy(run_dir: &Path, runs: &Path) -> (String, Vec<(i64, String, &'static str)>) {
+    let id = "damaged-run".to_string();
+    let copy = runs.join(&id);
+    copy_dir(run_dir, &copy);
+    let conn = common::db(&copy);
+    let row = |sql: &str| -> (i64, String) {
+        conn.query_row(sql, [], |r| Ok((r.get(0)?, r.get(1)?)))
+            .expect("frame row")
+    };
+    let garbage = row("SELECT id, path FROM frames WHERE kind = 'raw' ORDER BY id LIMIT 1");
+    let flipped = row("SELECT id, path FROM frames WHERE kind = 'hdr' ORDER BY id LIMIT 1");
+    let missing = row("SELECT id, path FROM frames WHERE kind = 'raw' ORDER BY id DESC LIMIT 1");
+    std::fs::write(copy.join(&garbage.1), b"not a PNG at all").expect("garbage");
+    let mut bytes = std::fs::read(copy.join(&flipped.1)).expect("hdr file");
+    let last = bytes.len() - 1;
+    bytes[last] ^= 0x40;
+    std::fs::write(copy.join(&flipped.1), bytes).expect("flip a byte");
+    std::fs::remove_file(copy.join(&missing.1)).expect("delete");
+    let frames = vec![
+        (garbage.0, garbage.1, "raw PNG replaced by garbage"),
+        (flipped.0, flipped.1, "HDR EXR with a flipped byte"),
+        (missing.0, missing.1, "raw PNG deleted"),
+    ];
+    (id, frames)
 }
 
 fn file_name(p: &Path) -> String {
@@ -727,6 +761,86 @@ async fn path_traversal_never_serves_a_file() {
                 assert!(!a.text().contains(SECRET), "{how}{suffix} served a secret");
             }
         }
+    })
+    .await;
+}
+
+/// A frame file that no longer matches the SHA-256 its index row recorded (or is gone) is never
+/// served: every format and the thumbnail answer 500 with a JSON error naming the file, the
+/// frame and the step, and saying how to find and repair the damage.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn damaged_frame_files_are_refused_with_a_repair_hint() {
+    with_api(|d, api| {
+        let run = &d.damaged_id;
+        for (id, path, how) in &d.damaged_frames {
+            let step: i64 = common::db(&d.run_dir)
+                .query_row("SELECT step FROM frames WHERE id = ?1", [id], |r| r.get(0))
+                .expect("step");
+            for suffix in ["", "?format=tiff", "?format=exr", "/thumbnail"] {
+                let a = api.get(&format!("/api/runs/{run}/frames/{id}{suffix}"));
+                assert_eq!(a.status, 500, "{how}{suffix}: {}", a.text());
+                assert!(
+                    a.content_type.starts_with("application/json"),
+                    "{how}{suffix}"
+                );
+                let error = a.json()["error"].as_str().unwrap_or("").to_string();
+                let hint = a.json()["hint"].as_str().unwrap_or("").to_string();
+                assert!(error.contains(path.as_str()), "{how}{suffix}: {error}");
+                assert!(
+                    error.contains(&format!("frame {id}")),
+                    "{how}{suffix}: {error}"
+                );
+                assert!(
+                    error.contains(&format!("step {step}")),
+                    "{how}{suffix}: {error}"
+                );
+                assert!(hint.contains("stagehand verify"), "{how}{suffix}: {hint}");
+                assert!(
+                    hint.contains(&format!("--retake {step}")),
+                    "{how}{suffix}: {hint}"
+                );
+            }
+        }
+        // The run's verify report names every damaged file and the steps to retake.
+        let report = api.get(&format!("/api/runs/{run}/verify"));
+        assert_eq!(report.status, 200, "{}", report.text());
+        let report = report.json();
+        assert_eq!(report["ok"], false, "{report}");
+        let problems = report["problems"].as_array().cloned().unwrap_or_default();
+        let mut steps = Vec::new();
+        for (id, path, how) in &d.damaged_frames {
+            let p = problems
+                .iter()
+                .find(|p| p["path"] == path.as_str())
+                .unwrap_or_else(|| panic!("{how}: {path} not in {report}"));
+            assert_eq!(p["frame_id"], *id, "{how}");
+            steps.push(p["step"].as_u64().expect("step"));
+        }
+        steps.sort();
+        steps.dedup();
+        assert_eq!(report["retake_steps"], serde_json::json!(steps));
+        let command = report["retake_command"].as_str().unwrap_or("");
+        assert!(
+            command.starts_with("stagehand resume --retake "),
+            "{command}"
+        );
+        // The intact original verifies clean.
+        let clean = api.get(&format!("/api/runs/{}/verify", d.run_id)).json();
+        assert_eq!(clean["ok"], true, "{clean}");
+        assert_eq!(clean["files_checked"], 80);
+        assert_eq!(api.get("/api/runs/no-such-run/verify").status, 404);
+
+        // An intact frame of the same run is still served.
+        let intact: i64 = db(d)
+            .query_row(
+                "SELECT id FROM frames WHERE kind = 'raw' ORDER BY id LIMIT 1 OFFSET 1",
+                [],
+                |r| r.get(0),
+            )
+            .expect("a second raw frame");
+        assert!(d.damaged_frames.iter().all(|(bad, _, _)| *bad != intact));
+        let a = api.get(&format!("/api/runs/{run}/frames/{intact}?format=tiff"));
+        assert_eq!(a.status, 200, "{}", a.text());
     })
     .await;
 }

@@ -150,6 +150,16 @@ fn kill_at_random_points_then_resume_loses_and_duplicates_nothing() {
             })
             .count();
         assert_eq!(leftovers, 0);
+        // And `stagehand verify` agrees: nothing damaged, missing, stray or left over.
+        let verified = Command::new(BIN)
+            .args(["verify", dir.to_str().unwrap()])
+            .output()
+            .unwrap();
+        assert!(
+            verified.status.success(),
+            "round {round}: verify after resume: {}",
+            String::from_utf8_lossy(&verified.stdout)
+        );
     }
     let _ = Duration::ZERO;
 }

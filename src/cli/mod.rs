@@ -104,9 +104,14 @@ enum Command {
         #[arg(long)]
         emulate: bool,
     },
-    /// Finish an interrupted run (after a crash, kill, abort or full disk).
+    /// Finish an interrupted run (after a crash, kill, abort or full disk), or with --retake
+    /// capture damaged steps of a run again.
     Resume {
         run_dir: PathBuf,
+        /// Capture these steps again (comma-separated step numbers, as `stagehand verify`
+        /// prints them): their frames are removed from the index, then the run resumes.
+        #[arg(long, value_name = "STEPS", value_delimiter = ',')]
+        retake: Vec<usize>,
         #[arg(long, short = 'y')]
         yes: bool,
         #[arg(long, default_value_t = DEFAULT_RESERVE_BYTES >> 20)]
@@ -114,6 +119,15 @@ enum Command {
         /// Resume against firmware emulators (a run started with `--emulate`).
         #[arg(long)]
         emulate: bool,
+    },
+    /// Check a run directory: every file against the index (present, size, SHA-256,
+    /// decodable), every index row against the plan, no stray or temp files. Exit 0 when all
+    /// is well, 1 on any problem (with the retake command that repairs damaged steps).
+    Verify {
+        run_dir: PathBuf,
+        /// Print the report as JSON.
+        #[arg(long)]
+        json: bool,
     },
 }
 
@@ -192,11 +206,7 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
             let violations = crate::validate::validate(&plan, &rig.spec);
             let estimate = crate::estimate::estimate(&plan, &rig.spec);
             if json {
-                println!(
-                    "{}",
-                    serde_json::to_string_pretty(&plan)
-                        .map_err(|e| SessionError::Io(e.to_string()))?
-                );
+                print_json(&plan)?;
             } else {
                 let renderer = renderer_line(&rig.spec);
                 print!(
@@ -269,13 +279,35 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
             });
             report(&dir, started, result)
         }
+        Command::Verify { run_dir, json } => {
+            let report = crate::storage::verify::verify_run(&run_dir)?;
+            if json {
+                print_json(&report)?;
+            } else {
+                print!("{}", report.render());
+            }
+            Ok(if report.ok { 0 } else { 1 })
+        }
         Command::Resume {
             run_dir,
+            retake,
             yes,
             reserve_mib,
             emulate,
         } => {
-            let reopened = session::reopen(&run_dir)?;
+            let mut reopened = session::reopen(&run_dir)?;
+            if !retake.is_empty() {
+                let reset = reopened.store.retake(&reopened.plan, &retake)?;
+                eprintln!(
+                    "retaking step(s) {}: {} step(s) to run again",
+                    retake
+                        .iter()
+                        .map(usize::to_string)
+                        .collect::<Vec<_>>()
+                        .join(","),
+                    reset.len()
+                );
+            }
             let runtime =
                 session::runtime_for(&reopened.rig).map_err(|e| SessionError::Io(e.to_string()))?;
             eprintln!("resuming {}", run_dir.display());
@@ -289,6 +321,13 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
             report(&run_dir, started, result)
         }
     }
+}
+
+/// Prints `value` as pretty JSON on stdout (`--json`).
+fn print_json(value: &impl serde::Serialize) -> Result<(), SessionError> {
+    let text = serde_json::to_string_pretty(value).map_err(|e| SessionError::Io(e.to_string()))?;
+    println!("{text}");
+    Ok(())
 }
 
 /// The emulators' port links go in a fresh directory under the system's temp dir.

@@ -8,10 +8,10 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::time::{Duration, UNIX_EPOCH};
+use std::time::UNIX_EPOCH;
 
 use rusqlite::types::Value;
-use rusqlite::{Connection, OpenFlags, OptionalExtension, Row};
+use rusqlite::{Connection, OptionalExtension, Row};
 use serde::Serialize;
 use utoipa::ToSchema;
 
@@ -129,6 +129,21 @@ pub enum FrameIndexError {
         frame_id: i64,
         reason: String,
     },
+    /// The frame's file is missing or no longer matches the SHA-256 recorded when it was
+    /// written (500: the dataset is damaged; `stagehand verify` finds every such file and
+    /// `stagehand resume --retake` captures the step again).
+    #[error("frame {frame_id} of run {run} (step {step}) is damaged: {path} {reason}")]
+    Damaged {
+        run: String,
+        /// The run directory, for the repair commands.
+        run_dir: PathBuf,
+        frame_id: i64,
+        step: usize,
+        /// The file, relative to the run directory.
+        path: String,
+        /// What is wrong with it ("is missing", "does not match …").
+        reason: String,
+    },
     /// A filter value is out of range (400).
     #[error("{0}")]
     BadFilter(String),
@@ -192,42 +207,10 @@ pub fn run_dir(runs_dir: &Path, run_id: &str) -> Result<PathBuf, FrameIndexError
     Ok(canon)
 }
 
-/// Opens a run's index read-only. While a writer has the index open its `-wal` file exists
-/// and this is an ordinary WAL reader (it sees the last committed step). When there is no
-/// `-wal` (no writer since the last clean close) the file is opened `immutable`, because a
-/// read-only WAL reader would otherwise leave `-shm`/`-wal` files behind in the run directory.
+/// Opens a run's index read-only ([`crate::storage::index::open_read_only`]: never blocks or
+/// disturbs a writer and leaves no files behind).
 pub fn open_index(run_dir: &Path, run_id: &str) -> Result<Connection, FrameIndexError> {
-    let err = index_err(run_id);
-    let path = run_dir.join(INDEX);
-    let flags = OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX;
-    let quiescent = !run_dir.join(format!("{INDEX}-wal")).exists();
-    let conn = if quiescent {
-        Connection::open_with_flags(
-            format!("file:{}?immutable=1", uri_path(&path)),
-            flags | OpenFlags::SQLITE_OPEN_URI,
-        )
-    } else {
-        Connection::open_with_flags(&path, flags)
-    }
-    .map_err(&err)?;
-    conn.busy_timeout(Duration::from_secs(5)).map_err(&err)?;
-    conn.execute_batch("PRAGMA query_only = ON;")
-        .map_err(&err)?;
-    Ok(conn)
-}
-
-/// A file path percent-encoded for an SQLite `file:` URI.
-fn uri_path(path: &Path) -> String {
-    use std::os::unix::ffi::OsStrExt;
-    let mut out = String::new();
-    for &b in path.as_os_str().as_bytes() {
-        if b.is_ascii_alphanumeric() || b"/-_.~".contains(&b) {
-            out.push(char::from(b));
-        } else {
-            out.push_str(&format!("%{b:02X}"));
-        }
-    }
-    out
+    crate::storage::index::open_read_only(run_dir).map_err(index_err(run_id))
 }
 
 fn index_err(run_id: &str) -> impl Fn(rusqlite::Error) -> FrameIndexError + '_ {
@@ -421,13 +404,79 @@ pub fn frame(
         })?;
     let file = frame_file(&dir, &info.path).map_err(|reason| {
         tracing::warn!(run = run_id, frame_id, "frame file refused: {reason}");
-        FrameIndexError::FileUnavailable {
-            run: run_id.to_string(),
-            frame_id,
-            reason,
+        let gone = std::fs::symlink_metadata(dir.join(&info.path))
+            .is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound);
+        if gone && crate::storage::layout::is_frame_path(&info.path) {
+            damaged(&dir, &info, "is missing".into())
+        } else {
+            FrameIndexError::FileUnavailable {
+                run: run_id.to_string(),
+                frame_id,
+                reason,
+            }
         }
     })?;
     Ok((info, file))
+}
+
+/// A [`FrameIndexError::Damaged`] for the frame `info` of the run at `run_dir`.
+fn damaged(run_dir: &Path, info: &FrameInfo, reason: String) -> FrameIndexError {
+    FrameIndexError::Damaged {
+        run: info.run_id.clone(),
+        run_dir: run_dir.to_path_buf(),
+        frame_id: info.frame_id,
+        step: info.step,
+        path: info.path.clone(),
+        reason,
+    }
+}
+
+/// Reads the file of frame `info` (resolved by [`frame`] to `file`) and checks it against the
+/// SHA-256 its index row recorded, so a damaged file is never served or converted as if fine.
+pub fn read_verified(info: &FrameInfo, file: &Path) -> Result<Vec<u8>, FrameIndexError> {
+    // `file` is canonical and inside `<run>/frames/`.
+    let run_dir = file
+        .parent()
+        .and_then(Path::parent)
+        .unwrap_or(file)
+        .to_path_buf();
+    let (bytes, found) =
+        crate::storage::checksum::read_hashed(file, info.size_bytes).map_err(|e| {
+            tracing::warn!(
+                run = info.run_id,
+                frame_id = info.frame_id,
+                "cannot read {}: {e}",
+                file.display()
+            );
+            if e.kind() == std::io::ErrorKind::NotFound {
+                damaged(&run_dir, info, "is missing".into())
+            } else {
+                FrameIndexError::FileUnavailable {
+                    run: info.run_id.clone(),
+                    frame_id: info.frame_id,
+                    reason: e.to_string(),
+                }
+            }
+        })?;
+    if found != info.sha256 {
+        tracing::warn!(
+            run = info.run_id,
+            frame_id = info.frame_id,
+            path = info.path,
+            "frame file damaged"
+        );
+        return Err(damaged(
+            &run_dir,
+            info,
+            format!(
+                "does not match the SHA-256 recorded when it was written (recorded {}, the \
+                 file's {} bytes hash to {found})",
+                info.sha256,
+                bytes.len()
+            ),
+        ));
+    }
+    Ok(bytes)
 }
 
 /// Resolves an index row's `path` inside the canonical run directory `run_dir`: relative,

@@ -1,7 +1,8 @@
 //! Frame format conversion for downloads and thumbnails.
 //!
-//! Raw frames are 16-bit RGB PNG on disk (sensor DN, unscaled) and convert losslessly to a
-//! 16-bit RGB TIFF or a 32-bit float EXR (the same DN as floats). HDR frames are 32-bit float
+//! Raw frames are 16-bit RGB PNG on disk (sensor DN MSB-aligned with an sBIT chunk, or
+//! unshifted in old datasets; [`decode_png16`] gives the DN back either way) and convert
+//! losslessly to a 16-bit RGB TIFF or a 32-bit float EXR (the DN, unshifted, as floats). HDR frames are 32-bit float
 //! EXR (DN per second at gain 1) and convert losslessly to a 32-bit float TIFF; a PNG of an
 //! HDR frame is refused ([`ConvertError::WouldClip`]): 16 bits cannot hold the range, and a
 //! silently tone-mapped file would look like data. Thumbnails are 8-bit sRGB PNG previews.
@@ -535,9 +536,16 @@ mod tests {
     #[test]
     fn conversions_round_trip() -> Result<(), Box<dyn std::error::Error>> {
         let (w, h) = (5u32, 3u32);
-        let px: Vec<u16> = (0..w * h * 3).map(|i| (i * 1000) as u16).collect();
-        let png = encode_png16("t.png", w, h, &px, r#"{"camera":"c"}"#)?;
+        // 12-bit DN, stored MSB-aligned: every conversion gives the DN back.
+        let px: Vec<u16> = (0..w * h * 3).map(|i| ((i * 271) % 4096) as u16).collect();
+        let png = encode_png16("t.png", w, h, &px, 12, r#"{"camera":"c"}"#)?;
         assert_eq!(convert("raw", "t", png.clone(), ImageFormat::Png)?, png);
+        // A frame of an old dataset (DN unshifted, no sBIT) converts to the same DN.
+        let old = crate::storage::png16::encode("t.png", w, h, &px, None, r#"{"camera":"c"}"#)?;
+        assert_eq!(
+            convert("raw", "t", old.clone(), ImageFormat::Tiff)?,
+            convert("raw", "t", png.clone(), ImageFormat::Tiff)?
+        );
         let tif = convert("raw", "t", png.clone(), ImageFormat::Tiff)?;
         let mut dec = tiff::decoder::Decoder::new(Cursor::new(tif))?;
         assert_eq!(dec.dimensions()?, (w, h));

@@ -334,6 +334,8 @@ fn metadata(
         width: frame.width,
         height: frame.height,
         bit_depth: frame.bit_depth,
+        // The storage writer MSB-aligns raw samples and records the shift it applied.
+        sample_shift: 0,
         saturated_samples: frame.saturated_samples() as u64,
         notes: frame.notes.clone(),
     }

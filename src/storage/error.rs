@@ -158,6 +158,20 @@ pub enum StorageError {
         reason: String,
     },
 
+    /// A step given to `resume --retake` cannot be captured again.
+    #[error(
+        "cannot retake step {step} of run {run}: {reason}; `stagehand verify {run}` names the \
+         capture steps whose files are damaged"
+    )]
+    InvalidRetake {
+        /// The step asked for.
+        step: usize,
+        /// The run directory.
+        run: PathBuf,
+        /// Why not.
+        reason: String,
+    },
+
     /// The frame's pixels do not match its size or kind.
     #[error("frame {name}: {reason}")]
     InvalidFrame {

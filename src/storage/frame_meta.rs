@@ -89,6 +89,12 @@ pub struct FrameMeta {
     pub height: u32,
     /// Significant bits per sample of the sensor (raw) or 32 for f32 HDR.
     pub bit_depth: u8,
+    /// Left shift of the samples in the raw PNG (`16 - bit_depth`: MSB-aligned, so viewers
+    /// show the frame; the PNG's sBIT chunk says the same). 0 for HDR frames and for raw
+    /// frames of datasets written before MSB alignment (index schema < 3). The storage writer
+    /// sets it; readers get DN back from [`super::png16::decode_png16`].
+    #[serde(default)]
+    pub sample_shift: u8,
     /// Samples at the sensor's maximum (raw) or saturated in every exposure (HDR).
     pub saturated_samples: u64,
     /// Backend-specific notes, stored verbatim.
@@ -157,17 +163,23 @@ pub struct FrameToWrite {
 /// `s{step:06}_{camera}_hdr.exr` for HDR frames. The camera id is sanitised to
 /// `[A-Za-z0-9_-]`; a raw frame without an exposure index is named `e0`.
 pub fn frame_file_name(meta: &FrameMeta) -> String {
-    let camera = sanitize(&meta.camera, "camera");
     match meta.kind {
-        FrameKind::Raw => {
-            format!(
-                "s{:06}_{camera}_e{}.png",
-                meta.step,
-                meta.exposure_index.unwrap_or(0)
-            )
-        }
-        FrameKind::Hdr => format!("s{:06}_{camera}_hdr.exr", meta.step),
+        FrameKind::Raw => raw_file_name(meta.step, &meta.camera, meta.exposure_index.unwrap_or(0)),
+        FrameKind::Hdr => hdr_file_name(meta.step, &meta.camera),
     }
+}
+
+/// [`frame_file_name`] of raw exposure `exposure_index` of `camera` in step `step`.
+pub fn raw_file_name(step: usize, camera: &str, exposure_index: usize) -> String {
+    format!(
+        "s{step:06}_{}_e{exposure_index}.png",
+        sanitize(camera, "camera")
+    )
+}
+
+/// [`frame_file_name`] of the HDR merge of `camera`'s bracket in step `step`.
+pub fn hdr_file_name(step: usize, camera: &str) -> String {
+    format!("s{step:06}_{}_hdr.exr", sanitize(camera, "camera"))
 }
 
 /// File name of a ground-truth image of a frame: the frame's file stem, then the plane kind
@@ -211,6 +223,7 @@ pub(crate) mod tests {
             width: 4,
             height: 3,
             bit_depth: 12,
+            sample_shift: 4,
             saturated_samples: 0,
             notes: serde_json::json!({"renderer": {"spp": 4, "effects": ["diffuse", "specular"]}}),
         }

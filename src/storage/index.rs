@@ -33,9 +33,15 @@ use super::frame_meta::{FrameKind, FrameMeta};
 use super::manifest::Manifest;
 use crate::plan::Plan;
 
-/// Schema version, stored in `PRAGMA user_version`. Version 1 (no `ground_truth` table) is
-/// upgraded in place by [`Index::open`].
-pub const SCHEMA_VERSION: i32 = 2;
+/// Schema version, stored in `PRAGMA user_version`. Versions 1 (no `ground_truth` table) and
+/// 2 (no `frames.sample_shift`) are upgraded in place by [`Index::open`].
+pub const SCHEMA_VERSION: i32 = 3;
+
+/// What schema version 3 added to version 2: the left shift of each raw frame's samples in its
+/// PNG (MSB alignment, see [`super::png16`]). Rows of older datasets get 0: their PNGs hold
+/// the DN unshifted.
+pub const SAMPLE_SHIFT_SCHEMA: &str =
+    "ALTER TABLE frames ADD COLUMN sample_shift INTEGER NOT NULL DEFAULT 0;";
 
 /// What schema version 2 added to version 1: the ground-truth images written beside frames.
 /// One row per image; deleting a frame row deletes its ground truth rows.
@@ -283,6 +289,8 @@ impl Index {
         tx.execute_batch(SCHEMA).map_err(sqlite("create schema"))?;
         tx.execute_batch(GROUND_TRUTH_SCHEMA)
             .map_err(sqlite("create ground truth table"))?;
+        tx.execute_batch(SAMPLE_SHIFT_SCHEMA)
+            .map_err(sqlite("add the sample shift column"))?;
         tx.pragma_update(None, "user_version", SCHEMA_VERSION)
             .map_err(sqlite("set schema version"))?;
         tx.execute(
@@ -322,13 +330,19 @@ impl Index {
             .conn
             .query_row("PRAGMA user_version", [], |row| row.get(0))
             .map_err(index.err("read schema version"))?;
-        if version == 1 {
+        if version == 1 || version == 2 {
+            let ground_truth = if version == 1 {
+                GROUND_TRUTH_SCHEMA
+            } else {
+                ""
+            };
             index
                 .conn
                 .execute_batch(&format!(
-                    "BEGIN; {GROUND_TRUTH_SCHEMA} PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
+                    "BEGIN; {ground_truth} {SAMPLE_SHIFT_SCHEMA} \
+                     PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
                 ))
-                .map_err(index.err("upgrade the schema to version 2"))?;
+                .map_err(index.err("upgrade the schema to version 3"))?;
             return Ok(index);
         }
         if version != SCHEMA_VERSION {
@@ -457,12 +471,7 @@ impl Index {
                 }
                 Some(_) => {}
             }
-            tx.prepare_cached("DELETE FROM ground_truth WHERE step = ?1")
-                .and_then(|mut q| q.execute([step]))
-                .map_err(sqlite("delete old ground truth rows"))?;
-            tx.prepare_cached("DELETE FROM frames WHERE step = ?1")
-                .and_then(|mut q| q.execute([step]))
-                .map_err(sqlite("delete old frame rows"))?;
+            delete_step_rows(&tx, step).map_err(sqlite("delete old frame rows"))?;
             {
                 let mut insert = tx
                     .prepare_cached(
@@ -471,9 +480,10 @@ impl Index {
                             exposure_index, exposure_s, exposures_s, gain, trigger_id, axes_deg,
                             lamps_on, laser_armed, laser_on, laser_colour_nm, laser_tilt_deg,
                             laser_mount_deg, fixture, cart_mm, rig_time_s, wall_time_unix_s, width,
-                            height, bit_depth, saturated_samples, notes)
+                            height, bit_depth, saturated_samples, notes, sample_shift)
                          VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15,
-                            ?16, ?17, ?18, ?19, ?20, ?21, ?22, ?23, ?24, ?25, ?26, ?27, ?28, ?29)",
+                            ?16, ?17, ?18, ?19, ?20, ?21, ?22, ?23, ?24, ?25, ?26, ?27, ?28, ?29,
+                            ?30)",
                     )
                     .map_err(sqlite("prepare frame insert"))?;
                 for (row, (exposures, axes, lamps, notes)) in rows.iter().zip(encoded.iter()) {
@@ -520,6 +530,7 @@ impl Index {
                             m.bit_depth,
                             saturated,
                             notes,
+                            m.sample_shift,
                         ])
                         .map_err(sqlite("insert frame row"))?;
                     let frame_id = tx.last_insert_rowid();
@@ -567,6 +578,44 @@ impl Index {
         tx.commit().map_err(sqlite("commit steps"))
     }
 
+    /// Makes `steps` pending again in ONE transaction: deletes their frame and ground-truth
+    /// rows and clears their journal times. Returns the paths of the deleted rows' files
+    /// (relative to the run directory), which the caller removes after the commit.
+    pub(crate) fn reset_steps(&mut self, steps: &[usize]) -> Result<Vec<String>> {
+        let path = self.path.clone();
+        let sqlite = |what| sql_err(&path, what);
+        let tx = self.conn.transaction().map_err(sqlite("begin retake"))?;
+        let mut files = Vec::new();
+        for &step in steps {
+            let step = to_i64(step);
+            for sql in [
+                "SELECT path FROM ground_truth WHERE step = ?1",
+                "SELECT path FROM frames WHERE step = ?1",
+            ] {
+                let mut q = tx
+                    .prepare_cached(sql)
+                    .map_err(sqlite("list retaken files"))?;
+                let rows = q
+                    .query_map([step], |r| r.get::<_, String>(0))
+                    .map_err(sqlite("list retaken files"))?;
+                for row in rows {
+                    files.push(row.map_err(sqlite("list retaken files"))?);
+                }
+            }
+            delete_step_rows(&tx, step).map_err(sqlite("delete retaken frame rows"))?;
+            tx.prepare_cached(
+                "UPDATE steps SET status = 'pending', rig_time_start_s = NULL,
+                    rig_time_end_s = NULL, wall_time_unix_s = NULL WHERE idx = ?1",
+            )
+            .and_then(|mut q| q.execute([step]))
+            .map_err(sqlite("mark retaken step pending"))?;
+        }
+        tx.execute("UPDATE runs SET updated_unix_s = ?1", [now_unix_s()])
+            .map_err(sqlite("touch run row"))?;
+        tx.commit().map_err(sqlite("commit retake"))?;
+        Ok(files)
+    }
+
     /// Frame rows, of one step or all, ordered by step and path.
     pub(crate) fn frames(&self, step: Option<usize>) -> Result<Vec<StoredFrame>> {
         let mut stmt = self
@@ -575,7 +624,8 @@ impl Index {
                 "SELECT path, sha256, size_bytes, step, block, label, camera, kind, exposure_index,
                     exposure_s, exposures_s, gain, trigger_id, axes_deg, lamps_on, laser_armed,
                     laser_on, laser_colour_nm, laser_tilt_deg, laser_mount_deg, fixture, cart_mm,
-                    rig_time_s, wall_time_unix_s, width, height, bit_depth, saturated_samples, notes
+                    rig_time_s, wall_time_unix_s, width, height, bit_depth, saturated_samples, notes,
+                    sample_shift
                  FROM frames WHERE ?1 IS NULL OR step = ?1 ORDER BY step, path",
             )
             .map_err(self.err("query frames"))?;
@@ -613,6 +663,7 @@ impl Index {
                     width: r.get(24)?,
                     height: r.get(25)?,
                     bit_depth: r.get(26)?,
+                    sample_shift: r.get(29)?,
                     saturated_samples: to_u64(27, r.get(27)?)?,
                     notes: serde_json::Value::Null,
                 };
@@ -691,6 +742,54 @@ impl Index {
     pub(crate) fn conn(&self) -> &Connection {
         &self.conn
     }
+}
+
+/// Deletes the frame rows of `step` and the ground-truth rows beside them.
+fn delete_step_rows(tx: &Transaction<'_>, step: i64) -> rusqlite::Result<()> {
+    tx.prepare_cached("DELETE FROM ground_truth WHERE step = ?1")?
+        .execute([step])?;
+    tx.prepare_cached("DELETE FROM frames WHERE step = ?1")?
+        .execute([step])?;
+    Ok(())
+}
+
+/// Opens the index of the run at `run_dir` read-only, for readers that must not take the
+/// run's write lock (the daemon's listings, `stagehand verify`). While a writer has the index
+/// open its `-wal` file exists and this is an ordinary WAL reader (it sees the last committed
+/// step). When there is no `-wal` (no writer since the last clean close) the file is opened
+/// `immutable`, because a read-only WAL reader would otherwise leave `-shm`/`-wal` files
+/// behind in the run directory.
+pub fn open_read_only(run_dir: &Path) -> rusqlite::Result<Connection> {
+    let path = run_dir.join(super::layout::INDEX);
+    let flags = OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX;
+    let quiescent = !run_dir
+        .join(format!("{}-wal", super::layout::INDEX))
+        .exists();
+    let conn = if quiescent {
+        Connection::open_with_flags(
+            format!("file:{}?immutable=1", uri_path(&path)),
+            flags | OpenFlags::SQLITE_OPEN_URI,
+        )
+    } else {
+        Connection::open_with_flags(&path, flags)
+    }?;
+    conn.busy_timeout(std::time::Duration::from_secs(5))?;
+    conn.execute_batch("PRAGMA query_only = ON;")?;
+    Ok(conn)
+}
+
+/// A file path percent-encoded for an SQLite `file:` URI.
+fn uri_path(path: &Path) -> String {
+    use std::os::unix::ffi::OsStrExt;
+    let mut out = String::new();
+    for &b in path.as_os_str().as_bytes() {
+        if b.is_ascii_alphanumeric() || b"/-_.~".contains(&b) {
+            out.push(char::from(b));
+        } else {
+            out.push_str(&format!("%{b:02X}"));
+        }
+    }
+    out
 }
 
 /// Converts a count or index to SQLite's integer (saturating: no plan or image gets near 2⁶³).

@@ -33,6 +33,17 @@ pub const FRAMES_DIR: &str = "frames";
 /// Lock file name.
 pub const LOCK: &str = ".lock";
 
+/// True for `frames/<file name>`: the only form of path the index records for a file (a
+/// relative path with no `..`, no root and no deeper directories).
+pub fn is_frame_path(rel: &str) -> bool {
+    use std::path::Component;
+    let mut parts = Path::new(rel).components();
+    matches!(
+        (parts.next(), parts.next(), parts.next()),
+        (Some(Component::Normal(dir)), Some(Component::Normal(_)), None) if dir == FRAMES_DIR
+    )
+}
+
 /// Names the script copy may not take, because the layout uses them.
 const RESERVED: [&str; 6] = [MANIFEST, PLAN, RIG, SCENE, INDEX, FRAMES_DIR];
 
@@ -162,5 +173,16 @@ mod tests {
         assert_eq!(script_copy_name("plan.json"), "script-plan.json");
         assert_eq!(sanitize("cam/5 ", "c"), "cam_5_");
         assert_eq!(sanitize("", "c"), "c");
+        assert!(is_frame_path("frames/s000001_cam1_e0.png"));
+        for bad in [
+            "",
+            "frames",
+            "frames/a/b.png",
+            "../frames/a.png",
+            "/frames/a.png",
+            "x/a.png",
+        ] {
+            assert!(!is_frame_path(bad), "{bad:?}");
+        }
     }
 }

@@ -18,6 +18,7 @@
 //! | [`hdr_merge`] | Debevec-style bracket merge |
 //! | [`index`] | SQLite schema and queries |
 //! | [`run_store`] | the writer of a run |
+//! | [`verify`] | checks a run: files against the index, the index against the plan |
 //! | [`error`] | typed errors |
 
 pub mod atomic;
@@ -32,6 +33,7 @@ pub mod layout;
 pub mod manifest;
 pub mod png16;
 pub mod run_store;
+pub mod verify;
 
 #[cfg(test)]
 mod tests;

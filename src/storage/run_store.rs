@@ -37,7 +37,7 @@ use super::index::{
 };
 use super::layout;
 use super::manifest::Manifest;
-use super::png16::encode_png16;
+use super::png16::{encode_png16, msb_shift};
 use crate::plan::Plan;
 
 /// How many `-N` suffixes `create` tries before giving up.
@@ -215,14 +215,7 @@ impl RunStore {
                 missing: "the directory itself",
             });
         }
-        let manifest_path = dir.join(layout::MANIFEST);
-        let manifest_bytes = read_required(&dir, layout::MANIFEST)?;
-        let manifest: Manifest =
-            serde_json::from_slice(&manifest_bytes).map_err(|source| StorageError::Json {
-                op: "decode",
-                path: manifest_path,
-                source,
-            })?;
+        let manifest = read_manifest(&dir)?;
         if manifest.format_version > Manifest::FORMAT_VERSION {
             return Err(StorageError::UnsupportedFormat {
                 path: dir,
@@ -337,8 +330,15 @@ impl RunStore {
     /// (moves, lamp switches) with one fsync instead of one each. Returns the written files.
     pub fn commit_steps(
         &mut self,
-        batch: Vec<(StepRecord, Vec<FrameToWrite>)>,
+        mut batch: Vec<(StepRecord, Vec<FrameToWrite>)>,
     ) -> Result<Vec<PathBuf>> {
+        // Raw samples go MSB-aligned into their PNG; the shift is recorded with the frame.
+        for f in batch.iter_mut().flat_map(|(_, frames)| frames.iter_mut()) {
+            f.meta.sample_shift = match f.meta.kind {
+                FrameKind::Raw => msb_shift(&frame_file_name(&f.meta), f.meta.bit_depth)?,
+                FrameKind::Hdr => 0,
+            };
+        }
         let mut written = Vec::with_capacity(batch.len());
         for (record, frames) in &batch {
             written.push(self.write_frames(record.step, frames)?);
@@ -438,9 +438,14 @@ impl RunStore {
                         source,
                     })?;
                 let bytes = match &f.pixels {
-                    FramePixels::Raw(px) => {
-                        encode_png16(&name, f.meta.width, f.meta.height, px, &json)?
-                    }
+                    FramePixels::Raw(px) => encode_png16(
+                        &name,
+                        f.meta.width,
+                        f.meta.height,
+                        px,
+                        f.meta.bit_depth,
+                        &json,
+                    )?,
                     FramePixels::Hdr(px) => {
                         encode_exr(&name, f.meta.width, f.meta.height, px, &json)?
                     }
@@ -463,6 +468,64 @@ impl RunStore {
             .collect::<Result<Vec<_>>>()?;
         fsync_dir(frames_dir)?;
         Ok(written)
+    }
+
+    /// Prepares capture steps for `stagehand resume --retake` (after `stagehand verify` found
+    /// their files damaged): in ONE transaction, deletes the frame and ground-truth rows of
+    /// `steps` and marks them pending, together with every frameless step (moves, lamps,
+    /// laser, prompts) between the first and the last of them, so the resumed run brings the
+    /// rig into each retaken step's state exactly as the plan had it. Then removes the deleted
+    /// rows' files (a file left behind is an orphan that the retake replaces). Captures that
+    /// are not retaken stay done, with their frames.
+    ///
+    /// Every step must be a capture step of `plan`. Returns the steps made pending, in order.
+    pub fn retake(&mut self, plan: &Plan, steps: &[usize]) -> Result<Vec<usize>> {
+        let is_capture = |i: usize| {
+            plan.steps
+                .get(i)
+                .is_some_and(|s| matches!(s.action, crate::plan::Action::Capture { .. }))
+        };
+        for &step in steps {
+            let reason = match plan.steps.get(step) {
+                None => format!(
+                    "the plan has steps 0..={}",
+                    plan.steps.len().saturating_sub(1)
+                ),
+                Some(s) if !is_capture(step) => format!(
+                    "it is a `{}` step, which records no frames; only capture steps are retaken",
+                    s.action.kind()
+                ),
+                Some(_) => continue,
+            };
+            return Err(StorageError::InvalidRetake {
+                step,
+                run: self.dir.clone(),
+                reason,
+            });
+        }
+        let (Some(&first), Some(&last)) = (steps.iter().min(), steps.iter().max()) else {
+            return Ok(Vec::new());
+        };
+        let wanted: BTreeSet<usize> = steps.iter().copied().collect();
+        // Skipped steps do not act on the rig: re-run the frameless ones between retakes so
+        // each retaken capture finds the lamps, laser, axes and fixture of the original.
+        let reset: Vec<usize> = (first..=last)
+            .filter(|&i| wanted.contains(&i) || !is_capture(i))
+            .collect();
+        let files = self.index.reset_steps(&reset)?;
+        for rel in files {
+            let path = self.dir.join(&rel);
+            match fs::remove_file(&path) {
+                Ok(()) => {}
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+                Err(e) => {
+                    tracing::warn!(path = %path.display(), error = %e, "could not remove a retaken file; the retake replaces it");
+                }
+            }
+        }
+        fsync_dir(&self.frames_dir)?;
+        tracing::info!(dir = %self.dir.display(), ?steps, pending = reset.len(), "steps reset for a retake");
+        Ok(reset)
     }
 
     /// Sets the run status (and an optional message, e.g. the error that failed the run).
@@ -558,6 +621,16 @@ fn write_ground_truth(
             })
         })
         .collect()
+}
+
+/// Reads and decodes the run's `manifest.json`; a directory without one is not a run.
+pub(crate) fn read_manifest(dir: &Path) -> Result<Manifest> {
+    let bytes = read_required(dir, layout::MANIFEST)?;
+    serde_json::from_slice(&bytes).map_err(|source| StorageError::Json {
+        op: "decode",
+        path: dir.join(layout::MANIFEST),
+        source,
+    })
 }
 
 /// Reads a file the run layout requires, or says the directory is not a complete run.

@@ -99,6 +99,7 @@ fn hdr_frame(step: usize, camera: &str) -> FrameToWrite {
     meta.exposures_s = vec![0.01, 0.02];
     meta.exposure_s = 0.02;
     meta.bit_depth = 32;
+    meta.sample_shift = 0;
     meta.trigger_id = None;
     let n = (meta.width * meta.height * 3) as usize;
     let pixels = (0..n).map(|i| 1.0e5 * i as f32 + 0.125).collect();
@@ -323,11 +324,14 @@ fn png_round_trip_and_identical_bytes_without_wall_time() -> TestResult {
 
     let decoded = decode_png16("t", &bytes_a)?;
     assert_eq!((decoded.width, decoded.height), (meta.width, meta.height));
-    assert_eq!(decoded.pixels, pixels);
+    assert_eq!(decoded.pixels, pixels, "the DN come back exactly");
+    // Stored MSB-aligned (12-bit sensor: shifted by 4, sBIT 12), and the shift is recorded.
+    assert_eq!((decoded.significant_bits, decoded.shift), (12, 4));
     let embedded: serde_json::Value =
         serde_json::from_str(decoded.metadata.as_deref().ok_or("no iTXt")?)?;
     assert_eq!(embedded["camera"], "cam5");
     assert_eq!(embedded["exposure_index"], 1);
+    assert_eq!(embedded["sample_shift"], 4);
     assert!(embedded.get("wall_time_unix_s").is_none());
 
     let mut later = frame;
@@ -337,11 +341,89 @@ fn png_round_trip_and_identical_bytes_without_wall_time() -> TestResult {
     assert_eq!(bytes_a, bytes_b);
     let rows = store.frames(Some(1))?;
     assert_eq!(rows.len(), 1);
+    assert_eq!(rows[0].meta.sample_shift, 4);
     assert_eq!(rows[0].sha256, sha256_hex(&bytes_a));
     assert_eq!(
         rows[0].meta.wall_time_unix_s,
         meta.wall_time_unix_s + 3600.0
     );
+    Ok(())
+}
+
+/// A dataset written before MSB alignment and ground truth (index schema 1, PNGs with the DN
+/// unshifted and no sBIT) verifies clean, opens, is upgraded to schema 3 with shift 0 in every
+/// row, and reads the same DN.
+#[test]
+fn old_datasets_without_sample_shift_still_read() -> TestResult {
+    let tmp = tempfile::tempdir()?;
+    let mut store = RunStore::create(tmp.path(), manifest(), &plan())?;
+    let dir = store.dir().to_path_buf();
+    // Every frame step 1 of the plan asks for, so the dataset verifies clean.
+    let mut frames = step1_frames();
+    frames.push(hdr_frame(1, "cam6"));
+    store.commit_step(&record(1, 9.5), frames.clone())?;
+    drop(store);
+    // Turn it into what an older stagehand wrote.
+    let conn = rusqlite::Connection::open(dir.join(layout::INDEX))?;
+    for f in &frames {
+        let FramePixels::Raw(px) = &f.pixels else {
+            continue;
+        };
+        let name = frame_file_name(&f.meta);
+        let mut old_meta = f.meta.clone();
+        old_meta.sample_shift = 0;
+        let json = old_meta.embedded_json()?;
+        let bytes = super::png16::encode(&name, 4, 3, px, None, &json)?;
+        fs::write(dir.join("frames").join(&name), &bytes)?;
+        conn.execute(
+            "UPDATE frames SET sha256 = ?1, size_bytes = ?2 WHERE path = ?3",
+            rusqlite::params![
+                sha256_hex(&bytes),
+                bytes.len() as i64,
+                format!("frames/{name}")
+            ],
+        )?;
+    }
+    conn.execute_batch(
+        "DROP VIEW frame_lamps; ALTER TABLE frames DROP COLUMN sample_shift;
+         CREATE VIEW frame_lamps AS
+             SELECT frames.*, j.value AS lamp FROM frames, json_each(frames.lamps_on) AS j;
+         DROP TABLE ground_truth;
+         PRAGMA user_version = 1;",
+    )?;
+    drop(conn);
+    let report = verify::verify_run(&dir)?;
+    assert!(report.ok, "{}", report.render());
+    assert_eq!(report.files_checked, frames.len());
+
+    let (store, _, _) = RunStore::open(&dir)?;
+    let version: i32 = store
+        .index()
+        .conn()
+        .query_row("PRAGMA user_version", [], |r| r.get(0))?;
+    assert_eq!(version, index::SCHEMA_VERSION);
+    let rows = store.frames(Some(1))?;
+    assert_eq!(rows.len(), frames.len());
+    for row in &rows {
+        assert_eq!(row.meta.sample_shift, 0, "{}", row.path);
+        if row.meta.kind != FrameKind::Raw {
+            continue;
+        }
+        let written = frames
+            .iter()
+            .find(|f| format!("frames/{}", frame_file_name(&f.meta)) == row.path)
+            .ok_or("a written frame")?;
+        let decoded = decode_png16(&row.path, &fs::read(dir.join(&row.path))?)?;
+        assert_eq!(FramePixels::Raw(decoded.pixels), written.pixels);
+        assert_eq!(decoded.shift, 0);
+    }
+    // The lamp view still works on the upgraded index.
+    let n: i64 = store.index().conn().query_row(
+        "SELECT count(*) FROM frame_lamps WHERE lamp = 'lamp3' AND sample_shift = 0",
+        [],
+        |r| r.get(0),
+    )?;
+    assert_eq!(n, frames.len() as i64);
     Ok(())
 }
 
@@ -489,5 +571,64 @@ fn inconsistent_commits_are_refused() -> TestResult {
     }
     assert!(store.done_steps()?.is_empty());
     assert_eq!(frame_row_count(&store)?, 0);
+    Ok(())
+}
+
+/// Verification against the plan: a done capture step missing a frame its plan step asks for,
+/// a frame no plan step asks for, and a stray file are each reported, with the steps to retake.
+#[test]
+fn verify_checks_the_index_against_the_plan() -> TestResult {
+    let tmp = tempfile::tempdir()?;
+    let mut store = RunStore::create(tmp.path(), manifest(), &plan())?;
+    let dir = store.dir().to_path_buf();
+    let home = StepRecord {
+        kind: "home".into(),
+        ..record(0, 4.0)
+    };
+    store.commit_step(&home, Vec::new())?;
+    // Step 1 asks for cam5 and cam6, two exposures each, and both cameras' HDR merges.
+    let mut step1 = step1_frames();
+    step1.push(hdr_frame(1, "cam6"));
+    store.commit_step(&record(1, 9.5), step1)?;
+    let report = verify::verify_run(&dir)?;
+    assert!(report.ok, "{}", report.render());
+    assert_eq!(report.files_checked, 6);
+
+    // Step 2 asks for cam5 only: without its HDR merge, and with a cam7 frame.
+    store.commit_step(
+        &record(2, 12.0),
+        vec![
+            raw_frame(2, "cam5", 0, &[]),
+            raw_frame(2, "cam5", 1, &[]),
+            raw_frame(2, "cam7", 0, &[]),
+        ],
+    )?;
+    fs::write(dir.join("notes.txt"), "mine")?;
+    let report = verify::verify_run(&dir)?;
+    let found: Vec<(verify::ProblemKind, Option<&str>, Option<usize>)> = report
+        .problems
+        .iter()
+        .map(|p| (p.kind, p.path.as_deref(), p.step))
+        .collect();
+    assert_eq!(
+        found,
+        vec![
+            (verify::ProblemKind::StrayFile, Some("notes.txt"), None),
+            (
+                verify::ProblemKind::MissingFrame,
+                Some("frames/s000002_cam5_hdr.exr"),
+                Some(2)
+            ),
+            (
+                verify::ProblemKind::UnplannedFrame,
+                Some("frames/s000002_cam7_e0.png"),
+                Some(2)
+            ),
+        ]
+    );
+    assert_eq!(report.retake_steps, vec![2]);
+    let command = format!("stagehand resume --retake 2 {}", dir.display());
+    assert_eq!(report.retake_command.as_deref(), Some(command.as_str()));
+    assert!(report.render().contains(&format!("repair: {command}")));
     Ok(())
 }

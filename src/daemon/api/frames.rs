@@ -114,6 +114,19 @@ impl From<FrameIndexError> for ApiError {
                 ApiError::not_found(format!("frame {frame_id} of run {run} is not available"))
                     .hint("the frame's file is missing or unsafe; check the run directory")
             }
+            FrameIndexError::Damaged {
+                run,
+                run_dir,
+                step,
+                ..
+            } => {
+                let dir = run_dir.display();
+                ApiError::internal(msg).hint(format!(
+                    "`GET /api/runs/{run}/verify` (or `stagehand verify {dir}`) lists every \
+                     damaged file of the run; `stagehand resume --retake {step} {dir}` captures \
+                     step {step} again"
+                ))
+            }
             FrameIndexError::BadFilter(_) => ApiError::bad_request(msg)
                 .hint(format!(
                     "limit is 0..={MAX_LIMIT} (default {DEFAULT_LIMIT}); offset and step are non-negative integers"
@@ -242,19 +255,6 @@ fn not_modified_response(etag: &str) -> Response {
     res
 }
 
-/// Reads a frame's file (found through its index row and checked by
-/// [`frame_index::frame`]).
-fn read_file(id: &str, frame_id: i64, file: &std::path::Path) -> ApiResult<Vec<u8>> {
-    std::fs::read(file).map_err(|e| {
-        tracing::warn!(run = id, frame_id, "cannot read {}: {e}", file.display());
-        ApiError::from(FrameIndexError::FileUnavailable {
-            run: id.to_string(),
-            frame_id,
-            reason: e.to_string(),
-        })
-    })
-}
-
 /// One frame's image: as stored (raw: 16-bit RGB PNG of sensor DN; HDR: 32-bit float RGB
 /// OpenEXR) or converted: raw → 16-bit RGB TIFF or 32-bit float EXR (same DN); HDR → 32-bit
 /// float TIFF. HDR → PNG is refused with 422 (it would clip). Conversions carry the frame
@@ -270,7 +270,7 @@ fn read_file(id: &str, frame_id: i64, file: &std::path::Path) -> ApiResult<Vec<u
         (status = 401, body = crate::daemon::error::ErrorBody),
         (status = 404, description = "No such run or frame", body = crate::daemon::error::ErrorBody),
         (status = 422, description = "PNG of an HDR frame (would clip)", body = crate::daemon::error::ErrorBody),
-        (status = 500, description = "The stored frame is damaged", body = crate::daemon::error::ErrorBody)))]
+        (status = 500, description = "The stored frame is damaged (missing, or not the bytes its SHA-256 recorded)", body = crate::daemon::error::ErrorBody)))]
 async fn download_frame(
     State(app): State<AppState>,
     ApiPath((id, frame_id)): ApiPath<(String, String)>,
@@ -302,7 +302,7 @@ async fn download_frame(
             ))
             .into());
         }
-        let bytes = read_file(&id, frame_id, &file)?;
+        let bytes = frame_index::read_verified(&info, &file)?;
         let name = download_name(&info, format.extension());
         let out = image_convert::convert(&info.kind, &name, bytes, format)?;
         Ok(image_response(
@@ -327,7 +327,7 @@ async fn download_frame(
         (status = 400, description = "Bad run id, frame id or size", body = crate::daemon::error::ErrorBody),
         (status = 401, body = crate::daemon::error::ErrorBody),
         (status = 404, description = "No such run or frame", body = crate::daemon::error::ErrorBody),
-        (status = 500, description = "The stored frame is damaged", body = crate::daemon::error::ErrorBody)))]
+        (status = 500, description = "The stored frame is damaged (missing, or not the bytes its SHA-256 recorded)", body = crate::daemon::error::ErrorBody)))]
 async fn thumbnail(
     State(app): State<AppState>,
     ApiPath((id, frame_id)): ApiPath<(String, String)>,
@@ -352,7 +352,7 @@ async fn thumbnail(
         if not_modified(&headers, &etag) {
             return Ok(not_modified_response(&etag));
         }
-        let bytes = read_file(&id, frame_id, &file)?;
+        let bytes = frame_index::read_verified(&info, &file)?;
         let name = download_name(&info, "png");
         let decoded = image_convert::decode(&info.kind, &name, &bytes)?;
         let png = image_convert::thumbnail(&decoded, size)?;

@@ -7,6 +7,7 @@ mod queue;
 mod runs;
 mod scripts;
 mod status;
+mod verify;
 
 use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
 use utoipa::{Modify, OpenApi};
@@ -114,4 +115,5 @@ pub fn routes() -> OpenApiRouter<AppState> {
         .merge(runs::routes())
         .merge(frames::routes())
         .merge(queue::routes())
+        .merge(verify::routes())
 }
