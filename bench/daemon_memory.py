@@ -4,11 +4,11 @@
     bench/daemon_memory.py [--script quickstart] [--runs 1] [--bin target/release/stagehand]
 
 Starts `stagehand serve` on the built-in light stage (full-size 1024x768 cameras, simulated) with
-a fresh data directory on a free loopback port, starts the script over the API, waits for each
-run to end, and samples the daemon's resident memory (/proc/PID/status) every 100 ms. Prints
+a fresh data directory on a free loopback port, starts the script over the API, confirms its
+prompts, waits for each run to end, and samples the daemon's resident memory (/proc/PID/status) every 100 ms. Prints
 the RSS before the run, the peak during it (the kernel's VmHWM high-water mark, so no sample
-can miss it), the RSS after, and the run's frames and wall time; the last line is the same as
-JSON. Build the binary first (`cargo build --release`).
+can miss it), the RSS after, the runs' frames, wall time and device faults (from /api/metrics: on the
+simulated rig there should be none); the last line is the same as JSON. Build the binary first (`cargo build --release`).
 """
 import argparse
 import json
@@ -95,6 +95,10 @@ def main():
             run_id = started["run_id"]
             while True:
                 time.sleep(0.5)
+                live = call("GET", "/api/status").get("run") or {}
+                if live.get("prompt"):
+                    # The operator confirms every prompt (as `run --yes` does).
+                    call("POST", f"/api/runs/{run_id}/prompt", {"answer": "continue"})
                 run = call("GET", f"/api/runs/{run_id}")
                 if run.get("status") not in ("running", None) and call("GET", "/api/status").get("run") is None:
                     break
@@ -102,15 +106,21 @@ def main():
             frames += int(run.get("frames", run.get("frames_written", 0)) or 0)
         wall = time.monotonic() - t0
         peak = status_kib(daemon.pid, "VmHWM")
+        req = urllib.request.Request(url + "/api/metrics")
+        req.add_header("Authorization", f"Bearer {token}")
+        metrics = urllib.request.urlopen(req, timeout=60).read().decode()
+        faults = sum(float(line.split()[-1]) for line in metrics.splitlines()
+                     if line.startswith("stagehand_device_errors_total"))
         after = status_kib(daemon.pid, "VmRSS")
         stop.set()
         sampler.join()
         mib = lambda kib: kib / 1024.0
-        print(f"runs: {args.runs} x {args.script} on {args.rig}: {statuses}, {frames} frames, {wall:.1f} s wall")
+        print(f"runs: {args.runs} x {args.script} on {args.rig}: {statuses}, {frames} frames, "
+              f"{wall:.1f} s wall, {faults:.0f} device faults")
         print(f"daemon RSS before {mib(before):.0f} MiB, peak {mib(peak):.0f} MiB, after {mib(after):.0f} MiB "
               f"(median sample during the runs {mib(sorted(samples)[len(samples) // 2]) if samples else 0:.0f} MiB)")
         print(json.dumps({"script": args.script, "runs": args.runs, "statuses": statuses,
-                          "frames": frames, "wall_s": round(wall, 1),
+                          "frames": frames, "wall_s": round(wall, 1), "device_faults": faults,
                           "rss_before_mib": round(mib(before)), "rss_peak_mib": round(mib(peak)),
                           "rss_after_mib": round(mib(after))}))
     finally:
