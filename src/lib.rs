@@ -5,6 +5,8 @@
 //! devices of a [`rig`] and hands frames to [`storage`], which makes them durable before the
 //! step's journal row commits.
 
+#![deny(unsafe_code)]
+
 mod camera_backends;
 pub mod cli;
 pub mod daemon;

@@ -10,7 +10,6 @@
 use std::fs::{File, OpenOptions};
 use std::io::{Read, Seek, SeekFrom, Write};
 use std::os::unix::fs::{OpenOptionsExt, PermissionsExt};
-use std::os::unix::io::AsRawFd;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, Weak};
 
@@ -268,11 +267,10 @@ pub fn lock_in(dir: &Path, port: &str) -> Result<PortLock, PortLockError> {
         .mode(0o666)
         .open(&path)
         .map_err(|e| io_err("open", e))?;
-    // SAFETY: flock on a descriptor we own and keep open for the lock's lifetime.
-    let rc = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
-    if rc != 0 {
-        let err = std::io::Error::last_os_error();
-        if err.kind() == std::io::ErrorKind::WouldBlock {
+    // Non-blocking exclusive `flock`; the kernel drops it with the last descriptor.
+    match file.try_lock() {
+        Ok(()) => {}
+        Err(std::fs::TryLockError::WouldBlock) => {
             let mut text = String::new();
             let _ = file.read_to_string(&mut text);
             return Err(PortLockError::Busy(PortBusy {
@@ -281,7 +279,7 @@ pub fn lock_in(dir: &Path, port: &str) -> Result<PortLock, PortLockError> {
                 holder: Holder::parse(&text),
             }));
         }
-        return Err(io_err("flock", err));
+        Err(std::fs::TryLockError::Error(err)) => return Err(io_err("flock", err)),
     }
     // Others of the rig's users must be able to take the lock after us.
     let _ = file.set_permissions(std::fs::Permissions::from_mode(0o666));

@@ -3,6 +3,8 @@
 //!
 //! This crate knows nothing of the engine or the simulator (see DESIGN.md).
 
+#![deny(unsafe_code)]
+
 pub mod axis;
 pub mod camera;
 pub mod cameras;

@@ -1,6 +1,8 @@
 //! The simulated light stage: a `World` holding the rig's state on the virtual clock,
 //! simulated devices that change it, and a renderer that turns it into camera frames.
 
+#![deny(unsafe_code)]
+
 pub mod emulators;
 pub mod materials;
 pub mod render;

@@ -17,7 +17,6 @@ use std::collections::{BTreeSet, HashSet};
 use std::ffi::CString;
 use std::fs::{self, File, OpenOptions};
 use std::os::unix::ffi::OsStrExt;
-use std::os::unix::io::AsRawFd;
 use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
@@ -655,22 +654,23 @@ fn lock_run(dir: &Path) -> Result<File> {
         .write(true)
         .open(&path)
         .map_err(|e| StorageError::io("open lock file", &path, e))?;
-    // SAFETY: flock on a file descriptor we own and keep open; no memory is shared.
-    let rc = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
-    if rc != 0 {
-        let err = std::io::Error::last_os_error();
-        if err.kind() == std::io::ErrorKind::WouldBlock {
+    // Non-blocking exclusive `flock`, held while the file stays open.
+    match file.try_lock() {
+        Ok(()) => {}
+        Err(std::fs::TryLockError::WouldBlock) => {
             return Err(StorageError::RunInUse {
                 path: dir.to_path_buf(),
                 lock: path,
             });
         }
-        return Err(StorageError::io("lock", path, err));
+        Err(std::fs::TryLockError::Error(err)) => return Err(StorageError::io("lock", path, err)),
     }
     Ok(file)
 }
 
 /// Bytes available to unprivileged users on the file system holding `path` (statvfs).
+// The only unsafe in the crate: std has no statvfs.
+#[allow(unsafe_code)]
 fn available_bytes(path: &Path) -> Result<u64> {
     let c_path = CString::new(path.as_os_str().as_bytes()).map_err(|_| {
         StorageError::io(

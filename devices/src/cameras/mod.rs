@@ -10,6 +10,8 @@ pub mod accounting;
 pub mod config;
 
 #[cfg(feature = "cam-aravis")]
+// The only unsafe in the crate: aravis-sys calls the safe `aravis` wrapper does not cover.
+#[allow(unsafe_code)]
 pub mod aravis;
 #[cfg(feature = "cam-gphoto2")]
 pub mod gphoto2;

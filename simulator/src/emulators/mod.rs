@@ -8,6 +8,8 @@ pub mod grbl;
 pub mod hid_board;
 pub mod ir_bridge;
 pub mod numato;
+// The only unsafe in the crate: registering the pty master with tokio, and FIONREAD.
+#[allow(unsafe_code)]
 pub mod pty;
 
 use std::path::{Path, PathBuf};
