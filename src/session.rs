@@ -1,5 +1,6 @@
 //! A capture session from start to end: script → plan → validation → dataset → rig → executor,
-//! and resuming an interrupted run. The CLI, the tests and (later) the daemon share this.
+//! and resuming an interrupted run. The CLI (`run`, `resume`), the daemon's run
+//! queue and the tests share this.
 
 use std::path::Path;
 use std::sync::Arc;

@@ -1,4 +1,5 @@
-//! Progress events broadcast while a run executes (CLI progress bar, later the web dashboard).
+//! Progress events broadcast while a run executes (the CLI progress bar, and the
+//! daemon's event hub, which serves them over SSE to the dashboard and `run --remote`).
 
 use serde::Serialize;
 
