@@ -1,7 +1,7 @@
 //! Device layer of stagehand: capability traits, the actor handles that own each device,
 //! the motion physics shared by drivers and the planner, and rig descriptions (TOML).
 //!
-//! This crate knows nothing of the engine or the simulator (see DESIGN.md).
+//! This crate knows nothing of the engine or the simulator (see ARCHITECTURE.md).
 
 #![deny(unsafe_code)]
 

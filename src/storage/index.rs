@@ -1,6 +1,6 @@
 //! The SQLite index of a run (`index.sqlite`): the run row, the step journal and one row per
 //! frame with every per-frame fact. WAL mode, `synchronous=FULL` (a commit is durable when it
-//! returns, which invariant 4 relies on).
+//! returns, which the durability invariant relies on).
 //!
 //! JSON columns (`manifest`, `axes_deg`, `lamps_on`, `exposures_s`, `notes`) are queried with
 //! SQLite's built-in JSON functions, e.g. all frames of lamp `lamp3` seen by camera `cam5`:

@@ -1,9 +1,10 @@
 //! Crash-safe run datasets: one directory per run with its manifest, plan, script, rig file,
 //! frames (16-bit PNG raw, OpenEXR HDR) and a SQLite index that doubles as the step journal.
 //!
-//! A step is done when its frames are durable (DESIGN.md invariant 4): [`RunStore::commit_step`]
-//! writes and fsyncs every frame file before the one transaction that indexes the frames and
-//! marks the step done. See [`run_store`] for the full contract and [`layout`] for the files.
+//! A step is done when its frames are durable (an invariant in ARCHITECTURE.md):
+//! [`RunStore::commit_step`] writes and fsyncs every frame file before the one transaction that
+//! indexes the frames and marks the step done. See [`run_store`] for the full contract and
+//! [`layout`] for the files.
 //!
 //! | file | concept |
 //! |---|---|

@@ -1,6 +1,6 @@
 //! [`RunStore`]: the one writer of a run directory.
 //!
-//! Crash-safety contract (DESIGN.md invariant 4):
+//! Crash-safety contract (the durability invariant in ARCHITECTURE.md):
 //! - a step is done exactly when its `steps` row says so, and that row commits (in the same
 //!   SQLite transaction as the step's frame rows) only after every frame file of the step is
 //!   written, fsynced, renamed into place and the `frames/` directory fsynced;

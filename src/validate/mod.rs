@@ -1,4 +1,5 @@
-//! Checking a plan against a rig before anything moves (DESIGN.md, data flow step 2).
+//! Checking a plan against a rig before anything moves (the second stage of the data flow in
+//! ARCHITECTURE.md).
 //!
 //! [`validate`] is pure: it folds the plan over the power-on [`RigState`] (tracking arm state,
 //! the fitted laser colour, lamps and the laser) and reports every problem with the step and

@@ -1,5 +1,5 @@
-//! Energy-normalised Blinn–Phong specular lobe (one of the parametric models the thesis names,
-//! seed report §4.3, Fig. 1.11).
+//! Energy-normalised Blinn–Phong specular lobe (one of the classic parametric specular
+//! models).
 //!
 //! ψ(wi, wo) = (m + 8)/(8π) · (n·h)^m with h = normalize(wi + wo) and m the exponent.
 //! This uses the (m+8)/(8π) *energy* normalisation (Akenine-Möller et al., "Real-Time

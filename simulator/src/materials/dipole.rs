@@ -1,7 +1,6 @@
 //! Jensen et al. (2001) dipole diffusion profile for homogeneous, optically thick translucent
-//! media (seed report §4.3, eqs 1.25–1.27), with the total diffuse reflectance of Jensen &
-//! Buhler (2002), its inverse, and the line-source integral used to fit laser-line scans
-//! (seed report §3.4, §5 item 4).
+//! media, with the total diffuse reflectance of Jensen & Buhler (2002), its inverse, and the
+//! line-source integral used to fit laser-line scans.
 //!
 //! R_d(r) = (α′/4π) [ z_r (σ_tr d_r + 1) e^{−σ_tr d_r} / d_r³ + z_v (σ_tr d_v + 1) e^{−σ_tr d_v} / d_v³ ]
 //! with σ′_t = σ′_s + σ_a, α′ = σ′_s/σ′_t, σ_tr = √(3σ_a σ′_t) = σ′_t √(3(1−α′)),
@@ -189,7 +188,7 @@ impl Dipole {
 
     /// Line-source profile I(d) = ∫_{−∞}^{∞} R_d(√(d² + s²)) ds (mm⁻¹): the exitance at
     /// distance `d` (mm) from an infinitely long, thin laser line of unit power per unit
-    /// length. It has no closed form for σ_tr > 0 (thesis §5 item 4), hence numeric.
+    /// length. It has no closed form for σ_tr > 0 hence numeric.
     ///
     /// Resolution knob: `steps` composite 3-point Gauss–Legendre panels (≥ 1) over half the
     /// line in u = ln(1 + s/L), L = √(d² + z_r²); the neglected tail is below 10⁻¹² of I(d). Measured worst relative error against the α′ = 1
@@ -237,7 +236,7 @@ fn gauss_legendre(panels: usize, u_max: f64, f: impl Fn(f64) -> f64) -> f64 {
 /// Closed-form total diffuse reflectance of the dipole (Jensen & Buhler 2002):
 /// R_d = (α′/2)(1 + e^{−(4/3)A√(3(1−α′))}) e^{−√(3(1−α′))}.
 ///
-/// Why: the thesis recovers α′ from the measured total reflectance (seed report §5 item 4) —
+/// Why: a fit recovers α′ from the measured total reflectance —
 /// see [`reduced_albedo_from_total`]. α′ is clamped into [0, 1] (NaN → 0); η as in
 /// [`boundary_coefficient`]. Strictly increasing in α′, from 0 at α′ = 0 to 1 at α′ = 1.
 pub fn total_diffuse_reflectance(alpha_prime: f64, eta: f64) -> f64 {
@@ -386,7 +385,8 @@ mod tests {
         }
     }
 
-    /// The thesis' Monte Carlo validation media (seed report §6, L1256) evaluate finitely.
+    /// Media of the Monte Carlo validation set the dipole is usually checked against evaluate
+    /// finitely.
     #[test]
     fn thesis_validation_materials() {
         let media = [(0.4248, 1.0), (0.4248, 1.5), (0.99, 2.13), (0.98, 1.5)];

@@ -1,5 +1,5 @@
-//! Fresnel reflectance at a smooth dielectric boundary (seed report §4.1, eqs 1.2–1.4) and the
-//! diffuse Fresnel reflectance used by the dipole boundary condition (eqs 1.25–1.27).
+//! Fresnel reflectance at a smooth dielectric boundary (the unpolarised Fresnel equations) and
+//! the diffuse Fresnel reflectance used by the dipole boundary condition (Jensen et al. 2001).
 //!
 //! Conventions: `cos_i` is the cosine of the angle between the incident direction and the
 //! surface normal on the incident side; `eta` is the *relative* index of refraction

@@ -1,5 +1,5 @@
-//! Lambertian (ideal diffuse) reflection — the diffuse term ρ_d/π of every model in the thesis
-//! (generic BRDF, eq. 1.24).
+//! Lambertian (ideal diffuse) reflection — the diffuse term ρ_d/π of every reflectance model
+//! here (the diffuse part of a generic BRDF).
 
 use glam::DVec3;
 

@@ -1,6 +1,6 @@
 //! Cook–Torrance microfacet BRDF with the GGX (Trowbridge–Reitz) distribution, Smith
-//! *height-correlated* masking-shadowing and a selectable Fresnel term (seed report §4.3 names
-//! Cook–Torrance among the parametric models).
+//! *height-correlated* masking-shadowing and a selectable Fresnel term (Cook & Torrance 1982,
+//! Walter et al. 2007).
 //!
 //! f(wi, wo) = F(wi·h) · D(h) · G₂(wi, wo) / (4 cosθ_i cosθ_o), evaluated in Heitz's (2014)
 //! "visibility" form V = G₂/(4 cosθ_i cosθ_o)

@@ -1,6 +1,6 @@
 //! Reflectance and subsurface-scattering models for the next simulator milestone: exact and
 //! approximate Fresnel, Lambert, isotropic/anisotropic Ward, normalised Blinn–Phong,
-//! Cook–Torrance GGX and the Jensen dipole (seed report 004, §4).
+//! Cook–Torrance GGX and the Jensen dipole.
 //!
 //! Everything is f64 with angles in radians; directions are unit `glam::DVec3` vectors pointing
 //! *away* from the surface (`wi` to the light, `wo` to the viewer). Every function is total:

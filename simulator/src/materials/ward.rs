@@ -1,5 +1,5 @@
 //! Ward (1992) isotropic and anisotropic glossy lobes — the model the thesis fits for the
-//! SVBRDF, the weathering manifold and the linear-light reflectometer (seed report §4.3).
+//! SVBRDF, the weathering manifold and the linear-light reflectometer.
 //!
 //! ψ(wi, wo) = exp(−tan²δ (cos²φ_h/α_x² + sin²φ_h/α_y²)) / (4π α_x α_y √(cosθ_i cosθ_o)),
 //! with δ the angle between the half vector h = wi + wo and the normal, φ_h its azimuth in the

@@ -47,8 +47,8 @@ impl Model {
     }
 }
 
-/// A homogeneous scattering medium under the surface, for the dipole BSSRDF (seed 004
-/// eq. 1.25–1.27). Coefficients per RGB channel in 1/mm.
+/// A homogeneous scattering medium under the surface, for the dipole BSSRDF (Jensen et al.
+/// 2001; see [`crate::materials::dipole`]). Coefficients per RGB channel in 1/mm.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Medium {
     /// Absorption coefficient σa.

@@ -1,5 +1,5 @@
-//! Subsurface scattering under the sample: the diffusion (dipole) term of the diffuse BSSRDF,
-//! seed 004 eq. 1.20 with the Jensen et al. (2001) profile R_d(r) of eqs 1.25–1.27.
+//! Subsurface scattering under the sample: the diffusion (dipole) term of the diffuse BSSRDF
+//! with the Jensen et al. (2001) profile R_d(r) (see [`crate::materials::dipole`]).
 //!
 //! Per frame: the irradiance *entering* the medium, E_in = Σ_lights E·F_t(η, cosθi)·meso_in, is
 //! gathered on a texel grid over the sample (shadowed when the plan has shadows), convolved per
@@ -385,7 +385,7 @@ mod tests {
     use crate::render::surface::Surface;
     use stagehand_devices::rig::LampKind;
 
-    /// The thesis' skin-like validation medium (seed 004 Table 5.7, material 1).
+    /// A skin-like validation medium (the felt scene's dipole medium).
     fn felt() -> Medium {
         Medium {
             sigma_a: Vec3A::new(0.5752, 0.8628, 0.0213),

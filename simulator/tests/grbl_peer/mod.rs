@@ -1,5 +1,6 @@
-//! The real GRBL 1.1h firmware as a test peer: `../shared/peers/grbl/` (unmodified firmware
-//! compiled with grbl-sim, served on a pty by its `serve.py`), built once into the target
+//! The real GRBL 1.1h firmware as a test peer, kept outside this repository (the unmodified
+//! firmware compiled with grbl-sim, served on a pty by its `serve.py`; found through
+//! `$STAGEHAND_GRBL_PEER`, else `shared/peers/grbl` beside the checkout), built once into the target
 //! directory. Tests that need it call [`Board::start`]; without the peer they are skipped with a
 //! message, unless `STAGEHAND_REQUIRE_PEERS=1` (set by CI), which makes a missing peer a failure.
 
