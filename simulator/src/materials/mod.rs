@@ -1,4 +1,4 @@
-//! Reflectance and subsurface-scattering models for the next simulator milestone: exact and
+//! Reflectance and subsurface-scattering models behind the renderer's materials: exact and
 //! approximate Fresnel, Lambert, isotropic/anisotropic Ward, normalised Blinn–Phong,
 //! Cook–Torrance GGX and the Jensen dipole.
 //!
