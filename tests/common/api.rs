@@ -1,9 +1,11 @@
-//! A blocking JSON client for a daemon under test (call it inside `spawn_blocking`).
+//! A blocking JSON client for a daemon under test, over `stagehand::client` (call it inside
+//! `spawn_blocking` or a thread of its own: each call waits on the test's runtime).
 
-use std::time::Duration;
-
+use reqwest::Method;
 use serde_json::Value;
+use stagehand::client::{Body, Client, EventStream, RawReply};
 use stagehand::daemon::RunningDaemon;
+use tokio::runtime::Handle;
 
 /// Status, headers and JSON body (or the text as a JSON string) of an answer.
 pub struct Reply {
@@ -23,25 +25,35 @@ impl Reply {
     }
 }
 
+impl From<RawReply> for Reply {
+    fn from(r: RawReply) -> Self {
+        let body = serde_json::from_str(&r.body).unwrap_or(Value::String(r.body));
+        Reply {
+            status: r.status,
+            headers: r.headers,
+            body,
+        }
+    }
+}
+
 /// One daemon and one token.
 #[derive(Clone)]
 pub struct Api {
     pub base: String,
     pub token: String,
-    agent: ureq::Agent,
+    client: Client,
+    runtime: Handle,
 }
 
 impl Api {
-    /// A client of `d` with `token`.
+    /// A client of `d` with `token` (made inside the test's runtime).
     pub fn new(d: &RunningDaemon, token: &str) -> Self {
-        let config = ureq::Agent::config_builder()
-            .http_status_as_error(false)
-            .timeout_global(Some(Duration::from_secs(60)))
-            .build();
+        let client = Client::new(&d.addr.to_string(), Some(token)).expect("a client");
         Self {
-            base: format!("http://{}", d.addr),
+            base: client.base().to_string(),
             token: token.to_string(),
-            agent: ureq::Agent::new_with_config(config),
+            client,
+            runtime: Handle::current(),
         }
     }
 
@@ -50,36 +62,22 @@ impl Api {
         Self::new(d, &d.state.tokens.operator)
     }
 
-    fn reply(r: Result<ureq::http::Response<ureq::Body>, ureq::Error>) -> Reply {
-        let r = r.expect("the daemon answers");
-        let status = r.status().as_u16();
-        let headers = r
-            .headers()
-            .iter()
-            .map(|(n, v)| (n.as_str().to_string(), v.to_str().unwrap_or("").to_string()))
-            .collect();
-        let text = r.into_body().read_to_string().expect("a body");
-        let body = serde_json::from_str(&text).unwrap_or(Value::String(text));
-        Reply {
-            status,
-            headers,
-            body,
-        }
+    fn call(&self, client: &Client, method: Method, path: &str, body: Body) -> Reply {
+        self.runtime
+            .block_on(client.raw(method, path, body))
+            .expect("the daemon answers")
+            .into()
     }
 
     /// `GET path` with the token.
     pub fn get_reply(&self, path: &str) -> Reply {
-        Self::reply(
-            self.agent
-                .get(format!("{}{path}", self.base))
-                .header("Authorization", format!("Bearer {}", self.token))
-                .call(),
-        )
+        self.call(&self.client, Method::GET, path, Body::Empty)
     }
 
     /// `GET path` without any token.
     pub fn get_anonymous(&self, path: &str) -> Reply {
-        Self::reply(self.agent.get(format!("{}{path}", self.base)).call())
+        let anonymous = self.client.with_token(None);
+        self.call(&anonymous, Method::GET, path, Body::Empty)
     }
 
     /// `GET path`: status and body.
@@ -90,37 +88,24 @@ impl Api {
 
     /// `POST path` with a raw JSON text body: status and body.
     pub fn post_text(&self, path: &str, body: &str) -> (u16, Value) {
-        let r = Self::reply(
-            self.agent
-                .post(format!("{}{path}", self.base))
-                .header("Authorization", format!("Bearer {}", self.token))
-                .header("Content-Type", "application/json")
-                .send(body),
-        );
+        let body = Body::Text {
+            content_type: "application/json".into(),
+            text: body.to_string(),
+        };
+        let r = self.call(&self.client, Method::POST, path, body);
         (r.status, r.body)
     }
 
     /// `POST path` with a JSON body (or none): status and body.
     pub fn post(&self, path: &str, body: Option<Value>) -> (u16, Value) {
-        let req = self
-            .agent
-            .post(format!("{}{path}", self.base))
-            .header("Authorization", format!("Bearer {}", self.token));
-        let r = Self::reply(match body {
-            Some(b) => req.send_json(b),
-            None => req.send_empty(),
-        });
+        let body = body.map_or(Body::Empty, Body::Json);
+        let r = self.call(&self.client, Method::POST, path, body);
         (r.status, r.body)
     }
 
     /// `DELETE path`: status and body.
     pub fn delete(&self, path: &str) -> (u16, Value) {
-        let r = Self::reply(
-            self.agent
-                .delete(format!("{}{path}", self.base))
-                .header("Authorization", format!("Bearer {}", self.token))
-                .call(),
-        );
+        let r = self.call(&self.client, Method::DELETE, path, Body::Empty);
         (r.status, r.body)
     }
 
@@ -129,6 +114,28 @@ impl Api {
         let (s, v) = self.post(path, body);
         assert_eq!(s, status, "POST {path}: {v}");
         v
+    }
+
+    /// `PUT path` with a text body: status and body.
+    pub fn put_text(&self, path: &str, body: &str) -> (u16, Value) {
+        let body = Body::Text {
+            content_type: "text/plain".into(),
+            text: body.to_string(),
+        };
+        let r = self.call(&self.client, Method::PUT, path, body);
+        (r.status, r.body)
+    }
+
+    /// Opens `GET /api/events`, with `Last-Event-ID` when given.
+    pub fn sse(&self, last_event_id: Option<u64>) -> Sse {
+        let events = self
+            .runtime
+            .block_on(self.client.events(last_event_id))
+            .expect("the daemon streams events");
+        Sse {
+            events,
+            runtime: self.runtime.clone(),
+        }
     }
 }
 
@@ -145,60 +152,19 @@ pub struct SseEvent {
 
 /// A live `GET /api/events` stream.
 pub struct Sse {
-    lines: std::io::Lines<std::io::BufReader<Box<dyn std::io::Read + Send>>>,
+    events: EventStream,
+    runtime: Handle,
 }
 
 impl Sse {
     /// The next event; `None` when the stream ended.
     pub fn next_event(&mut self) -> Option<SseEvent> {
-        let (mut kind, mut id, mut data) = (String::new(), None, String::new());
-        loop {
-            let line = self.lines.next()?.ok()?;
-            if line.is_empty() {
-                if kind.is_empty() && data.is_empty() {
-                    continue; // a keep-alive comment's end
-                }
-                let data = serde_json::from_str(&data).unwrap_or(Value::String(data));
-                return Some(SseEvent { kind, id, data });
-            }
-            if let Some(v) = line.strip_prefix("event:") {
-                kind = v.trim().to_string();
-            } else if let Some(v) = line.strip_prefix("id:") {
-                id = v.trim().parse().ok();
-            } else if let Some(v) = line.strip_prefix("data:") {
-                data.push_str(v.trim_start());
-            }
-        }
-    }
-}
-
-impl Api {
-    /// Opens `GET /api/events`, with `Last-Event-ID` when given.
-    pub fn sse(&self, last_event_id: Option<u64>) -> Sse {
-        let mut req = self
-            .agent
-            .get(format!("{}/api/events", self.base))
-            .header("Authorization", format!("Bearer {}", self.token));
-        if let Some(id) = last_event_id {
-            req = req.header("Last-Event-ID", id.to_string());
-        }
-        let r = req.call().expect("the daemon answers");
-        assert_eq!(r.status().as_u16(), 200);
-        let reader: Box<dyn std::io::Read + Send> = Box::new(r.into_body().into_reader());
-        Sse {
-            lines: std::io::BufRead::lines(std::io::BufReader::new(reader)),
-        }
-    }
-
-    /// `PUT path` with a text body: status and body.
-    pub fn put_text(&self, path: &str, body: &str) -> (u16, Value) {
-        let r = Self::reply(
-            self.agent
-                .put(format!("{}{path}", self.base))
-                .header("Authorization", format!("Bearer {}", self.token))
-                .content_type("text/plain")
-                .send(body),
-        );
-        (r.status, r.body)
+        let ev = self.runtime.block_on(self.events.next_raw())?.ok()?;
+        let data = serde_json::from_str(&ev.data).unwrap_or(Value::String(ev.data));
+        Some(SseEvent {
+            kind: ev.name,
+            id: ev.id,
+            data,
+        })
     }
 }
