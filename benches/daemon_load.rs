@@ -342,7 +342,7 @@ async fn wait_run_end(client: &Client, run_id: &str) -> Result<()> {
     loop {
         tokio::time::sleep(Duration::from_millis(250)).await;
         let active = client.active_run().await?;
-        if !active.is_some_and(|r| r.run_id == run_id) {
+        if active.is_none_or(|r| r.run_id != run_id) {
             return Ok(());
         }
         if Instant::now() > deadline {

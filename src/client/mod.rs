@@ -140,7 +140,7 @@ pub(crate) fn excerpt(text: &str) -> String {
     }
 }
 
-/// An answer as it came: status, headers and body text (for callers that check statuses
+/// An answer as it came: status, headers and body (for callers that check statuses
 /// themselves, such as the daemon's tests).
 #[derive(Debug, Clone)]
 pub struct RawReply {
@@ -148,8 +148,23 @@ pub struct RawReply {
     pub status: u16,
     /// Header names (lower case) and values (`""` when not text).
     pub headers: Vec<(String, String)>,
-    /// The body as text.
-    pub body: String,
+    /// The body (empty for an event stream, which is not read).
+    pub body: Vec<u8>,
+}
+
+impl RawReply {
+    /// The body as text (invalid UTF-8 replaced).
+    pub fn text(&self) -> String {
+        String::from_utf8_lossy(&self.body).into_owned()
+    }
+
+    /// The value of header `name` (lower case), `""` when absent.
+    pub fn header(&self, name: &str) -> &str {
+        self.headers
+            .iter()
+            .find(|(n, _)| n == name)
+            .map_or("", |(_, v)| v.as_str())
+    }
 }
 
 /// What a raw request sends.
@@ -165,6 +180,13 @@ pub enum Body {
         content_type: String,
         /// The body.
         text: String,
+    },
+    /// Bytes as they are (not necessarily UTF-8), with this content type.
+    Bytes {
+        /// The `Content-Type`.
+        content_type: String,
+        /// The body.
+        bytes: Vec<u8>,
     },
 }
 
@@ -244,10 +266,18 @@ impl Client {
             .iter()
             .map(|(n, v)| (n.as_str().to_string(), v.to_str().unwrap_or("").to_string()))
             .collect();
-        let body = resp
-            .text()
-            .await
-            .map_err(|e| self.unreachable(endpoint, e))?;
+        let stream = resp
+            .headers()
+            .get(reqwest::header::CONTENT_TYPE)
+            .is_some_and(|v| v.as_bytes().starts_with(b"text/event-stream"));
+        let body = if stream {
+            Vec::new()
+        } else {
+            resp.bytes()
+                .await
+                .map_err(|e| self.unreachable(endpoint, e))?
+                .to_vec()
+        };
         Ok(RawReply {
             status,
             headers,
@@ -262,14 +292,34 @@ impl Client {
         path: &str,
         body: Body,
     ) -> Result<RawReply, ClientError> {
+        self.raw_with(method, path, &[], body).await
+    }
+
+    /// Any request with extra headers (e.g. `If-None-Match`), answered as it came.
+    pub async fn raw_with(
+        &self,
+        method: Method,
+        path: &str,
+        headers: &[(&str, &str)],
+        body: Body,
+    ) -> Result<RawReply, ClientError> {
         let endpoint = format!("{method} {path}");
-        let req = self.request(method, path);
+        let mut req = self.request(method, path);
+        for (name, value) in headers {
+            req = req.header(*name, *value);
+        }
         let req = match body {
             Body::Empty => req,
             Body::Json(v) => req.json(&v),
             Body::Text { content_type, text } => req
                 .header(reqwest::header::CONTENT_TYPE, content_type)
                 .body(text),
+            Body::Bytes {
+                content_type,
+                bytes,
+            } => req
+                .header(reqwest::header::CONTENT_TYPE, content_type)
+                .body(bytes),
         };
         self.send(&endpoint, req).await
     }
@@ -280,8 +330,8 @@ impl Client {
         match reply.status {
             200..=299 => Ok(reply),
             status @ 400..=499 => {
-                let body = serde_json::from_str(&reply.body).unwrap_or_else(|_| ErrorBody {
-                    error: excerpt(&reply.body),
+                let body = serde_json::from_slice(&reply.body).unwrap_or_else(|_| ErrorBody {
+                    error: excerpt(&reply.text()),
                     hint: None,
                     violations: Vec::new(),
                 });
@@ -294,7 +344,7 @@ impl Client {
             status => Err(ClientError::Server {
                 endpoint: endpoint.to_string(),
                 status,
-                body: excerpt(&reply.body),
+                body: excerpt(&reply.text()),
             }),
         }
     }
@@ -308,7 +358,7 @@ impl Client {
     ) -> Result<T, ClientError> {
         let endpoint = format!("{method} {path}");
         let reply = Self::check(&endpoint, self.raw(method, path, body).await?)?;
-        decode(&endpoint, &reply.body)
+        decode(&endpoint, &reply.text())
     }
 
     /// `GET /api/status`: the active run, if any.
@@ -325,7 +375,7 @@ impl Client {
         if reply.status == 404 {
             return Ok(None);
         }
-        Ok(Some(Self::check(&format!("GET {path}"), reply)?.body))
+        Ok(Some(Self::check(&format!("GET {path}"), reply)?.text()))
     }
 
     /// `PUT /api/scripts/{name}`: stores the script; its dry run (which may list errors:
@@ -404,7 +454,7 @@ impl Client {
             .map_err(|e| self.unreachable(endpoint, e))?;
         if resp.status() != StatusCode::OK {
             let status = resp.status().as_u16();
-            let body = resp.text().await.unwrap_or_default();
+            let body = resp.bytes().await.map(|b| b.to_vec()).unwrap_or_default();
             let reply = RawReply {
                 status,
                 headers: Vec::new(),

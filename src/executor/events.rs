@@ -5,6 +5,10 @@ use serde::{Deserialize, Deserializer, Serialize};
 
 use crate::plan::Action;
 
+/// A step kind's name, one of [`Action::KINDS`]. (An alias, not `&'static str` written out,
+/// so that serde does not borrow it from the input: events deserialise from any JSON.)
+pub type StepKind = &'static str;
+
 /// Something that happened during a run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "event", rename_all = "snake_case")]
@@ -18,7 +22,7 @@ pub enum Event {
         step: usize,
         /// The step's [`Action::kind`].
         #[serde(deserialize_with = "step_kind")]
-        kind: &'static str,
+        kind: StepKind,
         block: String,
     },
     /// The step's devices are done; its frames are queued for writing.
@@ -26,7 +30,7 @@ pub enum Event {
         step: usize,
         /// The step's [`Action::kind`].
         #[serde(deserialize_with = "step_kind")]
-        kind: &'static str,
+        kind: StepKind,
         frames: usize,
         rig_time_s: f64,
         total_steps: usize,
@@ -72,7 +76,7 @@ pub enum Event {
 }
 
 /// Reads a step kind as the `&'static str` [`Action::kind`] gives (one of [`Action::KINDS`]).
-fn step_kind<'de, D: Deserializer<'de>>(d: D) -> Result<&'static str, D::Error> {
+fn step_kind<'de, D: Deserializer<'de>>(d: D) -> Result<StepKind, D::Error> {
     let name = String::deserialize(d)?;
     Action::KINDS
         .into_iter()

@@ -27,7 +27,7 @@ impl Reply {
 
 impl From<RawReply> for Reply {
     fn from(r: RawReply) -> Self {
-        let body = serde_json::from_str(&r.body).unwrap_or(Value::String(r.body));
+        let body = serde_json::from_slice(&r.body).unwrap_or_else(|_| Value::String(r.text()));
         Reply {
             status: r.status,
             headers: r.headers,
@@ -62,6 +62,23 @@ impl Api {
         Self::new(d, &d.state.tokens.operator)
     }
 
+    /// The same daemon with another token.
+    pub fn with_token(&self, token: &str) -> Self {
+        Self {
+            token: token.to_string(),
+            client: self.client.with_token(Some(token)),
+            ..self.clone()
+        }
+    }
+
+    /// `method path` with extra headers and a body, answered as it came (body bytes).
+    pub fn raw(&self, method: &str, path: &str, headers: &[(&str, &str)], body: Body) -> RawReply {
+        let method = Method::from_bytes(method.as_bytes()).expect("an HTTP method");
+        self.runtime
+            .block_on(self.client.raw_with(method, path, headers, body))
+            .expect("the daemon answers")
+    }
+
     fn call(&self, client: &Client, method: Method, path: &str, body: Body) -> Reply {
         self.runtime
             .block_on(client.raw(method, path, body))
@@ -69,9 +86,55 @@ impl Api {
             .into()
     }
 
-    /// `GET path` with the token.
+    /// `GET path` with the token. A path with a dot segment (`/..`, `/%2e%2e`) goes byte for
+    /// byte over a socket of its own: an HTTP client resolves those before sending.
     pub fn get_reply(&self, path: &str) -> Reply {
+        if has_dot_segment(path) {
+            return self.exact_get(path);
+        }
         self.call(&self.client, Method::GET, path, Body::Empty)
+    }
+
+    /// `GET target` as written (no client-side resolution of `..` or `%2F`), on a
+    /// connection that closes after the answer: the status and the whole answer as text.
+    pub fn get_exact(&self, target: &str) -> (u16, String) {
+        use std::io::{Read, Write};
+        let host = self.base.trim_start_matches("http://");
+        let mut s = std::net::TcpStream::connect(host).expect("connect");
+        s.set_read_timeout(Some(std::time::Duration::from_secs(30)))
+            .expect("timeout");
+        write!(
+            s,
+            "GET {target} HTTP/1.1\r\nHost: {host}\r\nAuthorization: Bearer {}\r\nConnection: close\r\n\r\n",
+            self.token
+        )
+        .expect("send");
+        let mut raw = Vec::new();
+        s.read_to_end(&mut raw).expect("read");
+        let text = String::from_utf8_lossy(&raw).into_owned();
+        let status = text
+            .split_whitespace()
+            .nth(1)
+            .and_then(|c| c.parse().ok())
+            .unwrap_or(0);
+        (status, text)
+    }
+
+    /// [`Api::get_exact`] as a [`Reply`] (a body with a length, not chunked).
+    fn exact_get(&self, target: &str) -> Reply {
+        let (status, text) = self.get_exact(target);
+        let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
+        let headers = head
+            .lines()
+            .skip(1)
+            .filter_map(|l| l.split_once(':'))
+            .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_string()))
+            .collect();
+        Reply {
+            status,
+            headers,
+            body: serde_json::from_str(body).unwrap_or_else(|_| Value::String(body.to_string())),
+        }
     }
 
     /// `GET path` without any token.
@@ -118,9 +181,14 @@ impl Api {
 
     /// `PUT path` with a text body: status and body.
     pub fn put_text(&self, path: &str, body: &str) -> (u16, Value) {
-        let body = Body::Text {
+        self.put_bytes(path, body.as_bytes())
+    }
+
+    /// `PUT path` with a `text/plain` body that need not be UTF-8: status and body.
+    pub fn put_bytes(&self, path: &str, body: &[u8]) -> (u16, Value) {
+        let body = Body::Bytes {
             content_type: "text/plain".into(),
-            text: body.to_string(),
+            bytes: body.to_vec(),
         };
         let r = self.call(&self.client, Method::PUT, path, body);
         (r.status, r.body)
@@ -137,6 +205,13 @@ impl Api {
             runtime: self.runtime.clone(),
         }
     }
+}
+
+/// True when `path` has a `.` or `..` segment, plain or percent-encoded.
+fn has_dot_segment(path: &str) -> bool {
+    path.split(['/', '?'])
+        .map(|seg| seg.to_ascii_lowercase().replace("%2e", "."))
+        .any(|seg| seg == "." || seg == "..")
 }
 
 /// One Server-Sent Event.
