@@ -181,6 +181,8 @@ pub enum Body {
         /// The body.
         text: String,
     },
+    /// Bytes as they are, with no content type (give one in the headers, or none).
+    Raw(Vec<u8>),
     /// Bytes as they are (not necessarily UTF-8), with this content type.
     Bytes {
         /// The `Content-Type`.
@@ -314,6 +316,7 @@ impl Client {
             Body::Text { content_type, text } => req
                 .header(reqwest::header::CONTENT_TYPE, content_type)
                 .body(text),
+            Body::Raw(bytes) => req.body(bytes),
             Body::Bytes {
                 content_type,
                 bytes,

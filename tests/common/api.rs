@@ -207,8 +207,9 @@ impl Api {
     }
 }
 
-/// True when `path` has a `.` or `..` segment, plain or percent-encoded.
-fn has_dot_segment(path: &str) -> bool {
+/// True when `path` has a `.` or `..` segment, plain or percent-encoded (an HTTP client
+/// resolves those before sending).
+pub fn has_dot_segment(path: &str) -> bool {
     path.split(['/', '?'])
         .map(|seg| seg.to_ascii_lowercase().replace("%2e", "."))
         .any(|seg| seg == "." || seg == "..")
