@@ -37,25 +37,13 @@ pub struct Resync {
 
 /// A `run` event: the executor's event of one run (its JSON is the [`Event`]'s with
 /// `run_id` added).
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Deserialize)]
 pub struct RunEvent {
     /// The run it belongs to.
     pub run_id: String,
     /// What happened.
+    #[serde(flatten)]
     pub event: Event,
-}
-
-impl<'de> Deserialize<'de> for RunEvent {
-    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        use serde::de::Error;
-        let mut map = serde_json::Map::deserialize(d)?;
-        let run_id = match map.remove("run_id") {
-            Some(serde_json::Value::String(id)) => id,
-            _ => return Err(D::Error::missing_field("run_id")),
-        };
-        let event = Event::deserialize(serde_json::Value::Object(map)).map_err(D::Error::custom)?;
-        Ok(Self { run_id, event })
-    }
 }
 
 /// A `prompt` event: a run asks the operator, or a prompt was answered.
