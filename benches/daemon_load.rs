@@ -13,13 +13,16 @@
 //! `STAGEHAND_LOAD_RPS` (1000), `STAGEHAND_LOAD_CONNS` (20), `STAGEHAND_LOAD_POSITIONS` (40,
 //! turntable positions of the run; about 0.7 s each). Prints a table, then one JSON line.
 
+use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
-use serde_json::{Value, json};
+use reqwest::Method;
+use serde_json::json;
+use stagehand::client::{Body, Client, EventStream, StartRun};
 use stagehand::daemon::{self, RunningDaemon, ServeOptions};
 use stagehand_devices::rig::BUILTIN_LIGHTSTAGE;
 use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
@@ -52,95 +55,59 @@ fn env_usize(name: &str, default: usize) -> usize {
         .unwrap_or(default)
 }
 
-// ---------------------------------------------------------------- a minimal HTTP/1.1 client
-
-/// One keep-alive HTTP/1.1 connection.
-struct Conn {
-    io: BufReader<TcpStream>,
-    host: String,
-    auth: String,
+/// A client of the daemon under test.
+fn client(addr: SocketAddr, token: &str) -> Result<Client> {
+    Ok(Client::new(&addr.to_string(), Some(token))?)
 }
 
-/// A response head.
-struct Head {
-    status: u16,
-    content_length: Option<usize>,
-    chunked: bool,
+// ------------------------------------------------- the stalled client's raw HTTP/1.1 socket
+
+/// One HTTP/1.1 connection with a receive buffer set small, for the client that stalls (the
+/// typed client cannot size its sockets' buffers).
+struct Conn {
+    io: BufReader<TcpStream>,
 }
 
 impl Conn {
-    async fn open(addr: SocketAddr, token: &str) -> Result<Conn> {
-        Self::open_with(addr, token, None).await
-    }
-
-    /// With `rcvbuf`, the socket's receive buffer is made that small (a client that cannot
-    /// keep up fills it quickly).
-    async fn open_with(addr: SocketAddr, token: &str, rcvbuf: Option<u32>) -> Result<Conn> {
+    /// Sends `GET /api/events` on a socket whose receive buffer is `rcvbuf` bytes (a client
+    /// that cannot keep up fills it quickly).
+    async fn events(addr: SocketAddr, token: &str, rcvbuf: u32) -> Result<Conn> {
         let socket = tokio::net::TcpSocket::new_v4()?;
-        if let Some(n) = rcvbuf {
-            socket.set_recv_buffer_size(n)?;
-        }
-        let stream = socket.connect(addr).await?;
+        socket.set_recv_buffer_size(rcvbuf)?;
+        let mut stream = socket.connect(addr).await?;
         stream.set_nodelay(true)?;
+        let req = format!(
+            "GET /api/events HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer {token}\r\n\r\n"
+        );
+        stream.write_all(req.as_bytes()).await?;
         Ok(Conn {
             io: BufReader::with_capacity(64 << 10, stream),
-            host: addr.to_string(),
-            auth: format!("Bearer {token}"),
         })
     }
 
-    async fn send_head(&mut self, method: &str, path: &str, body: Option<&str>) -> Result<()> {
-        let mut req = format!(
-            "{method} {path} HTTP/1.1\r\nHost: {}\r\nAuthorization: {}\r\n",
-            self.host, self.auth
-        );
-        if let Some(b) = body {
-            req.push_str(&format!(
-                "Content-Type: application/json\r\nContent-Length: {}\r\n",
-                b.len()
-            ));
-        }
-        req.push_str("\r\n");
-        if let Some(b) = body {
-            req.push_str(b);
-        }
-        self.io.get_mut().write_all(req.as_bytes()).await?;
-        Ok(())
-    }
-
-    async fn read_head(&mut self) -> Result<Head> {
+    /// Reads the response head; the body must be a chunked 200.
+    async fn read_head(&mut self) -> Result<()> {
         let mut line = String::new();
         if self.io.read_line(&mut line).await? == 0 {
             return Err("connection closed".into());
         }
-        let status: u16 = line
-            .split_whitespace()
-            .nth(1)
-            .and_then(|s| s.parse().ok())
-            .ok_or_else(|| format!("bad status line {line:?}"))?;
-        let mut head = Head {
-            status,
-            content_length: None,
-            chunked: false,
-        };
+        let status = line.split_whitespace().nth(1).unwrap_or("").to_string();
+        let mut chunked = false;
         loop {
             line.clear();
             if self.io.read_line(&mut line).await? == 0 {
                 return Err("connection closed in the head".into());
             }
-            let l = line.trim_end();
+            let l = line.trim_end().to_ascii_lowercase();
             if l.is_empty() {
-                return Ok(head);
+                break;
             }
-            if let Some((k, v)) = l.split_once(':') {
-                let (k, v) = (k.trim().to_ascii_lowercase(), v.trim());
-                if k == "content-length" {
-                    head.content_length = v.parse().ok();
-                } else if k == "transfer-encoding" && v.eq_ignore_ascii_case("chunked") {
-                    head.chunked = true;
-                }
-            }
+            chunked |= l.starts_with("transfer-encoding:") && l.ends_with("chunked");
         }
+        if status != "200" || !chunked {
+            return Err(format!("/api/events: {status}").into());
+        }
+        Ok(())
     }
 
     /// The next chunk of a chunked body (`None` at its end).
@@ -158,43 +125,18 @@ impl Conn {
         Ok((n > 0).then_some(buf))
     }
 
-    /// One request with its whole response body.
-    async fn request(
-        &mut self,
-        method: &str,
-        path: &str,
-        body: Option<&str>,
-    ) -> Result<(u16, Vec<u8>)> {
-        self.send_head(method, path, body).await?;
-        let head = self.read_head().await?;
-        let mut out = Vec::new();
-        if head.chunked {
-            while let Some(c) = self.read_chunk().await? {
-                out.extend(c);
+    /// The body's events (parsed by the typed client's SSE reader).
+    fn into_events(self) -> EventStream {
+        let chunks = futures_util::stream::unfold(Some(self), |conn| async move {
+            let mut c = conn?;
+            match c.read_chunk().await {
+                Ok(Some(chunk)) => Some((Ok(chunk), Some(c))),
+                Ok(None) => None,
+                Err(e) => Some((Err(e.to_string()), None)),
             }
-        } else if let Some(n) = head.content_length {
-            out.resize(n, 0);
-            self.io.read_exact(&mut out).await?;
-        }
-        Ok((head.status, out))
+        });
+        EventStream::from_bytes("stalled".into(), chunks)
     }
-}
-
-async fn call(
-    addr: SocketAddr,
-    token: &str,
-    method: &str,
-    path: &str,
-    body: Option<&Value>,
-) -> Result<Value> {
-    let mut c = Conn::open(addr, token).await?;
-    let body = body.map(Value::to_string);
-    let (status, bytes) = c.request(method, path, body.as_deref()).await?;
-    let v: Value = serde_json::from_slice(&bytes).unwrap_or(Value::Null);
-    if !(200..300).contains(&status) {
-        return Err(format!("{method} {path}: {status} {v}").into());
-    }
-    Ok(v)
 }
 
 // ---------------------------------------------------------------------------- SSE clients
@@ -233,69 +175,47 @@ struct Ending {
     error: Option<String>,
 }
 
-/// Reads an SSE response (head included) and counts its events until it ends or fails. The
-/// first `resync` is the stream's initial state: it bumps `ready` and is not counted as a
-/// resync.
-async fn follow_stream(c: &mut Conn, stats: &Counters, ready: Option<&AtomicUsize>) -> Result<()> {
-    let head = c.read_head().await?;
-    if head.status != 200 || !head.chunked {
-        return Err(format!("/api/events: {}", head.status).into());
-    }
-    let mut pending: Vec<u8> = Vec::new();
-    let mut name: Option<String> = None;
-    let mut has_data = false;
+/// Counts a stream's events (by name, not decoded) until it ends or fails. The first
+/// `resync` is the stream's initial state: it bumps `ready` and is not counted as a resync.
+async fn follow_stream(
+    events: &mut EventStream,
+    stats: &Counters,
+    ready: Option<&AtomicUsize>,
+) -> Result<()> {
     let mut first = true;
     loop {
-        let Some(chunk) = c.read_chunk().await? else {
-            return Err("the daemon ended the stream".into());
+        let ev = match events.next_raw().await {
+            Some(ev) => ev?,
+            None => return Err("the daemon ended the stream".into()),
         };
-        pending.extend(chunk);
-        while let Some(pos) = pending.iter().position(|&b| b == b'\n') {
-            let line: Vec<u8> = pending.drain(..=pos).collect();
-            let line = String::from_utf8_lossy(&line);
-            let line = line.trim_end_matches(['\n', '\r']);
-            if line.is_empty() {
-                if has_data {
-                    let n = name.take().unwrap_or_else(|| "message".into());
-                    stats.events.fetch_add(1, Ordering::SeqCst);
-                    if n == "resync" {
-                        if first {
-                            if let Some(r) = ready {
-                                r.fetch_add(1, Ordering::SeqCst);
-                            }
-                        } else {
-                            stats.resyncs.fetch_add(1, Ordering::SeqCst);
-                        }
-                    } else if n == "run" {
-                        stats.run_events.fetch_add(1, Ordering::SeqCst);
-                    }
-                    first = false;
+        stats.events.fetch_add(1, Ordering::SeqCst);
+        if ev.name == "resync" {
+            if first {
+                if let Some(r) = ready {
+                    r.fetch_add(1, Ordering::SeqCst);
                 }
-                has_data = false;
-                name = None;
-            } else if let Some(v) = line.strip_prefix("event:") {
-                name = Some(v.trim().to_string());
-            } else if line.starts_with("data:") {
-                has_data = true;
+            } else {
+                stats.resyncs.fetch_add(1, Ordering::SeqCst);
             }
+        } else if ev.name == "run" {
+            stats.run_events.fetch_add(1, Ordering::SeqCst);
         }
+        first = false;
     }
 }
 
 /// Follows `/api/events` until `stop`, counting events by name.
 async fn sse_client(
-    addr: SocketAddr,
-    token: String,
+    client: Client,
     ready: Arc<AtomicUsize>,
     stats: Arc<Counters>,
     mut stop: watch::Receiver<bool>,
 ) -> Ending {
     let mut end = Ending::default();
     let r = async {
-        let mut c = Conn::open(addr, &token).await?;
-        c.send_head("GET", "/api/events", None).await?;
+        let mut events = client.events(None).await?;
         tokio::select! {
-            r = follow_stream(&mut c, &stats, Some(&ready)) => r,
+            r = follow_stream(&mut events, &stats, Some(&ready)) => r,
             _ = stop.wait_for(|s| *s) => Ok(()),
         }
     }
@@ -317,10 +237,11 @@ async fn stalled_client(
 ) -> Ending {
     let mut end = Ending::default();
     let r = async {
-        let mut c = Conn::open_with(addr, &token, Some(4096)).await?;
-        c.send_head("GET", "/api/events", None).await?;
+        let mut c = Conn::events(addr, &token, 4096).await?;
         let _ = stop.wait_for(|s| *s).await;
-        let drain = follow_stream(&mut c, &stats, None);
+        c.read_head().await?;
+        let mut events = c.into_events();
+        let drain = follow_stream(&mut events, &stats, None);
         match tokio::time::timeout(Duration::from_secs(3), drain).await {
             Ok(r) => r,
             Err(_) => Ok(()),
@@ -345,16 +266,15 @@ struct StatusStats {
     non_200: usize,
 }
 
-/// Sends `GET /api/status` every `interval` (open loop, starting at `start`) until `stop`.
+/// Sends `GET /api/status` every `interval` (open loop, starting at `start`) until `stop`,
+/// on one keep-alive connection (a client of its own: its pool holds that one connection).
 async fn status_client(
-    addr: SocketAddr,
-    token: String,
+    client: Client,
     start: tokio::time::Instant,
     interval: Duration,
     stop: watch::Receiver<bool>,
 ) -> StatusStats {
     let mut stats = StatusStats::default();
-    let mut conn: Option<Conn> = None;
     let mut k: u32 = 0;
     while !*stop.borrow() {
         let at = start + interval * k;
@@ -363,29 +283,16 @@ async fn status_client(
         if *stop.borrow() {
             break;
         }
-        if conn.is_none() {
-            match Conn::open(addr, &token).await {
-                Ok(c) => conn = Some(c),
-                Err(_) => {
-                    stats.errors += 1;
-                    continue;
-                }
-            }
-        }
-        let Some(c) = conn.as_mut() else { continue };
-        match c.request("GET", "/api/status", None).await {
-            Ok((status, _)) => {
+        match client.raw(Method::GET, "/api/status", Body::Empty).await {
+            Ok(reply) => {
                 stats
                     .latencies_s
                     .push(tokio::time::Instant::now().duration_since(at).as_secs_f64());
-                if status != 200 {
+                if reply.status != 200 {
                     stats.non_200 += 1;
                 }
             }
-            Err(_) => {
-                stats.errors += 1;
-                conn = None;
-            }
+            Err(_) => stats.errors += 1,
         }
     }
     stats
@@ -406,49 +313,36 @@ struct RunResult {
     step_s: Vec<(usize, String, f64)>,
 }
 
-async fn run_once(
-    addr: SocketAddr,
-    token: &str,
-    d: &RunningDaemon,
-    positions: usize,
-) -> Result<RunResult> {
+async fn run_once(client: &Client, d: &RunningDaemon, positions: usize) -> Result<RunResult> {
     let started = Instant::now();
-    let body = json!({"script": "load", "set": {"positions": positions.to_string()}});
-    let v = call(addr, token, "POST", "/api/runs", Some(&body)).await?;
-    let run_id = v
-        .get("run_id")
-        .and_then(Value::as_str)
-        .ok_or("POST /api/runs: no run_id")?
-        .to_string();
-    wait_run_end(addr, token, &run_id).await?;
+    let set = BTreeMap::from([("positions".to_string(), json!(positions.to_string()))]);
+    let start = StartRun {
+        script: "load".into(),
+        set: Some(set),
+        seed: None,
+    };
+    let run_id = client.start_run(&start).await?.run_id;
+    wait_run_end(client, &run_id).await?;
     let wall_s = started.elapsed().as_secs_f64();
-    let detail = call(addr, token, "GET", &format!("/api/runs/{run_id}"), None).await?;
-    let get_u = |k: &str| detail.get(k).and_then(Value::as_u64).unwrap_or(0);
+    let detail = client.run(&run_id).await?.run;
     let step_s = step_times(&d.state.runs_dir().join(&run_id))?;
     Ok(RunResult {
-        status: detail
-            .get("status")
-            .and_then(Value::as_str)
-            .unwrap_or("?")
-            .to_string(),
-        steps_total: get_u("steps_total") as usize,
-        steps_done: get_u("steps_done") as usize,
-        frames: get_u("frames"),
+        status: detail.status,
+        steps_total: detail.steps_total,
+        steps_done: detail.steps_done,
+        frames: detail.frames as u64,
         wall_s,
         step_s,
         run_id,
     })
 }
 
-async fn wait_run_end(addr: SocketAddr, token: &str, run_id: &str) -> Result<()> {
+async fn wait_run_end(client: &Client, run_id: &str) -> Result<()> {
     let deadline = Instant::now() + Duration::from_secs(600);
-    let mut c = Conn::open(addr, token).await?;
     loop {
         tokio::time::sleep(Duration::from_millis(250)).await;
-        let (status, body) = c.request("GET", "/api/status", None).await?;
-        let v: Value = serde_json::from_slice(&body).unwrap_or(Value::Null);
-        let active = v.pointer("/run/run_id").and_then(Value::as_str) == Some(run_id);
-        if status == 200 && !active {
+        let active = client.active_run().await?;
+        if active.is_none_or(|r| r.run_id != run_id) {
             return Ok(());
         }
         if Instant::now() > deadline {
@@ -563,11 +457,12 @@ fn main() -> Result<()> {
 
     // 0. A short warm-up run (first renders, SQLite, page cache) so order does not bias.
     eprintln!("warm-up run…");
-    load_rt.block_on(run_once(addr, &token, &d, 2))?;
+    let api = client(addr, &token)?;
+    load_rt.block_on(run_once(&api, &d, 2))?;
 
     // 1. The run without load.
     eprintln!("run 1/2: no load…");
-    let quiet = load_rt.block_on(run_once(addr, &token, &d, positions))?;
+    let quiet = load_rt.block_on(run_once(&api, &d, positions))?;
     eprintln!(
         "  {} in {:.1} s, {}/{} steps",
         quiet.status, quiet.wall_s, quiet.steps_done, quiet.steps_total
@@ -578,6 +473,9 @@ fn main() -> Result<()> {
         "run 2/2: {sse_n} SSE clients + 1 stalled, {rps} status req/s over {conns} connections…"
     );
     let (stop_tx, stop_rx) = watch::channel(false);
+    let status_clients = (0..conns)
+        .map(|_| client(addr, &token))
+        .collect::<Result<Vec<_>>>()?;
     let counters: Vec<Arc<Counters>> = (0..sse_n).map(|_| Arc::default()).collect();
     let stalled_counters: Arc<Counters> = Arc::default();
     let (loaded, run_seen, endings, stalled_end, status, load_s, seq) = load_rt.block_on(async {
@@ -586,8 +484,7 @@ fn main() -> Result<()> {
             .iter()
             .map(|c| {
                 tokio::spawn(sse_client(
-                    addr,
-                    token.clone(),
+                    api.clone(),
                     ready.clone(),
                     c.clone(),
                     stop_rx.clone(),
@@ -615,12 +512,13 @@ fn main() -> Result<()> {
         let (load_stop_tx, load_stop_rx) = watch::channel(false);
         let interval = Duration::from_secs_f64(conns as f64 / rps as f64);
         let start = tokio::time::Instant::now() + Duration::from_millis(100);
-        let status_tasks: Vec<_> = (0..conns)
-            .map(|i| {
+        let status_tasks: Vec<_> = status_clients
+            .into_iter()
+            .enumerate()
+            .map(|(i, c)| {
                 let offset = interval.mul_f64(i as f64 / conns as f64);
                 tokio::spawn(status_client(
-                    addr,
-                    token.clone(),
+                    c,
                     start + offset,
                     interval,
                     load_stop_rx.clone(),
@@ -628,7 +526,7 @@ fn main() -> Result<()> {
             })
             .collect();
         let load_started = Instant::now();
-        let loaded = run_once(addr, &token, &d, positions).await;
+        let loaded = run_once(&api, &d, positions).await;
         let _ = load_stop_tx.send(true);
         let load_s = load_started.elapsed().as_secs_f64();
         let mut status = StatusStats::default();

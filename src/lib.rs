@@ -9,6 +9,7 @@
 
 mod camera_backends;
 pub mod cli;
+pub mod client;
 pub mod daemon;
 pub mod dry_run;
 pub mod estimate;

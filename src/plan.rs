@@ -83,6 +83,21 @@ pub enum Action {
 
 impl Action {
     /// Short name of the action kind, as in the JSON `kind` field.
+    /// Every name [`Action::kind`] returns.
+    pub const KINDS: [&'static str; 10] = [
+        "home",
+        "move",
+        "lamps",
+        "laser_arm",
+        "laser_disarm",
+        "laser",
+        "capture",
+        "cart_to",
+        "prompt",
+        "wait",
+    ];
+
+    /// The step kind's name (one of [`Action::KINDS`]).
     pub fn kind(&self) -> &'static str {
         match self {
             Action::Home { .. } => "home",

@@ -12,8 +12,11 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+use reqwest::Method;
 use serde_json::{Value, json};
+use stagehand::client::{Body, Client};
 use stagehand::daemon::{DaemonError, RunningDaemon};
+use tokio::runtime::Handle;
 
 type TestResult = Result<(), Box<dyn std::error::Error + Send + Sync>>;
 
@@ -36,22 +39,22 @@ struct Resp {
     body: String,
 }
 
-/// A blocking client for one daemon.
+/// A blocking client for one daemon (call it outside the runtime's workers): requests go
+/// through `stagehand::client`, except big bodies and paths with dot segments, which go byte
+/// for byte over a socket of their own.
 struct Http {
-    agent: ureq::Agent,
+    client: Client,
     base: String,
+    runtime: Handle,
 }
 
 impl Http {
     fn new(addr: SocketAddr) -> Http {
-        let agent = ureq::Agent::config_builder()
-            .http_status_as_error(false)
-            .timeout_global(Some(Duration::from_secs(20)))
-            .build()
-            .new_agent();
+        let client = Client::new(&addr.to_string(), None).expect("a client");
         Http {
-            agent,
-            base: format!("http://{addr}"),
+            base: client.base().to_string(),
+            client,
+            runtime: Handle::current(),
         }
     }
 
@@ -63,46 +66,25 @@ impl Http {
         ctype: Option<&str>,
         body: Option<&[u8]>,
     ) -> Result<Resp, String> {
-        if let Some(b) = body.filter(|b| b.len() > 64 << 10) {
-            return self.send_big(method, path, token, ctype, b);
+        if body.is_some_and(|b| b.len() > 64 << 10) || common::api::has_dot_segment(path) {
+            return self.send_big(method, path, token, ctype, body.unwrap_or(&[]));
         }
-        let mut req = ureq::http::Request::builder()
-            .method(method)
-            .uri(format!("{}{path}", self.base));
-        if let Some(t) = token {
-            req = req.header("Authorization", format!("Bearer {t}"));
-        }
-        if let Some(c) = ctype {
-            req = req.header("Content-Type", c);
-        }
-        let req = req
-            .body(body.unwrap_or(&[]).to_vec())
+        let m = Method::from_bytes(method.as_bytes())
             .map_err(|e| format!("{method} {path}: cannot build the request: {e}"))?;
-        let mut resp = self
-            .agent
-            .run(req)
+        let headers: Vec<(&str, &str)> = ctype.map(|c| ("Content-Type", c)).into_iter().collect();
+        let body = body.map_or(Body::Empty, |b| Body::Raw(b.to_vec()));
+        let r = self
+            .runtime
+            .block_on(
+                self.client
+                    .with_token(token)
+                    .raw_with(m, path, &headers, body),
+            )
             .map_err(|e| format!("{method} {path}: transport error: {e}"))?;
-        let status = resp.status().as_u16();
-        let ctype = resp
-            .headers()
-            .get("content-type")
-            .and_then(|v| v.to_str().ok())
-            .unwrap_or("")
-            .to_string();
-        let body = if ctype.starts_with("text/event-stream") {
-            String::new()
-        } else {
-            resp.body_mut()
-                .with_config()
-                .limit(64 << 20)
-                .lossy_utf8(true)
-                .read_to_string()
-                .unwrap_or_default()
-        };
         Ok(Resp {
-            status,
-            ctype,
-            body,
+            status: r.status,
+            ctype: r.header("content-type").to_string(),
+            body: r.text(),
         })
     }
 }

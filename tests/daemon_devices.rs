@@ -19,65 +19,33 @@ async fn daemon() -> (RunningDaemon, tempfile::TempDir) {
     (d, dir)
 }
 
-/// A blocking HTTP client for one daemon (call it inside `spawn_blocking`).
+/// A blocking client for one daemon (call it inside `spawn_blocking`) with this file's
+/// helpers.
 #[derive(Clone)]
 struct Api {
-    base: String,
-    token: String,
-    agent: ureq::Agent,
+    http: common::api::Api,
 }
 
 impl Api {
-    fn new(d: &RunningDaemon, token: &str) -> Self {
-        let config = ureq::Agent::config_builder()
-            .http_status_as_error(false)
-            .timeout_global(Some(Duration::from_secs(60)))
-            .build();
+    fn operator(d: &RunningDaemon) -> Self {
         Self {
-            base: format!("http://{}", d.addr),
-            token: token.to_string(),
-            agent: ureq::Agent::new_with_config(config),
+            http: common::api::Api::operator(d),
         }
     }
 
-    fn operator(d: &RunningDaemon) -> Self {
-        Self::new(d, &d.state.tokens.operator)
-    }
-
     fn read_only(d: &RunningDaemon) -> Self {
-        Self::new(d, &d.state.tokens.read_only)
+        Self {
+            http: common::api::Api::new(d, &d.state.tokens.read_only),
+        }
     }
 
     /// `POST path` with a JSON body (or none): status and body.
     fn post(&self, path: &str, body: Option<Value>) -> (u16, Value) {
-        let req = self
-            .agent
-            .post(format!("{}{path}", self.base))
-            .header("Authorization", format!("Bearer {}", self.token));
-        let r = match body {
-            Some(b) => req.send_json(b),
-            None => req.send_empty(),
-        };
-        Self::answer(r)
+        self.http.post(path, body)
     }
 
     fn get(&self, path: &str) -> (u16, Value) {
-        let r = self
-            .agent
-            .get(format!("{}{path}", self.base))
-            .header("Authorization", format!("Bearer {}", self.token))
-            .call();
-        Self::answer(r)
-    }
-
-    fn answer(r: Result<ureq::http::Response<ureq::Body>, ureq::Error>) -> (u16, Value) {
-        let r = r.expect("the daemon answers");
-        let status = r.status().as_u16();
-        let text = r.into_body().read_to_string().expect("a body");
-        (
-            status,
-            serde_json::from_str(&text).unwrap_or(Value::String(text)),
-        )
+        self.http.get(path)
     }
 
     fn ok(&self, path: &str, body: Option<Value>) -> Value {

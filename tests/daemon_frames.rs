@@ -9,12 +9,13 @@
 
 mod common;
 
-use std::io::{Cursor, Read, Write};
+use std::io::Cursor;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
 use serde_json::Value;
+use stagehand::client::Body;
 use stagehand::daemon::{RunningDaemon, ServeOptions};
 use stagehand::executor::{AutoConfirm, RunControl};
 use stagehand::session::{self, Wiring};
@@ -210,9 +211,7 @@ async fn daemon(d: &Dataset) -> RunningDaemon {
 /// A blocking HTTP client (call it inside `spawn_blocking`).
 #[derive(Clone)]
 struct Api {
-    addr: std::net::SocketAddr,
-    token: String,
-    agent: ureq::Agent,
+    http: common::api::Api,
 }
 
 /// Status, headers and body of an answer.
@@ -236,52 +235,24 @@ impl Answer {
 
 impl Api {
     fn new(d: &RunningDaemon) -> Self {
-        let config = ureq::Agent::config_builder()
-            .http_status_as_error(false)
-            .timeout_global(Some(Duration::from_secs(60)))
-            .build();
+        // Reading frames needs only the read-only token.
         Self {
-            addr: d.addr,
-            // Reading frames needs only the read-only token.
-            token: d.state.tokens.read_only.clone(),
-            agent: ureq::Agent::new_with_config(config),
+            http: common::api::Api::new(d, &d.state.tokens.read_only),
         }
     }
 
     fn get_with(&self, path: &str, if_none_match: Option<&str>) -> Answer {
-        let mut req = self
-            .agent
-            .get(format!("http://{}{path}", self.addr))
-            .header("Authorization", format!("Bearer {}", self.token));
-        if let Some(tag) = if_none_match {
-            req = req.header("If-None-Match", tag);
-        }
-        let mut r = req.call().expect("the daemon answers");
-        let header = |name: &str| {
-            r.headers()
-                .get(name)
-                .and_then(|v| v.to_str().ok())
-                .unwrap_or("")
-                .to_string()
-        };
-        let (content_type, disposition, etag) = (
-            header("content-type"),
-            header("content-disposition"),
-            header("etag"),
-        );
-        let status = r.status().as_u16();
-        let body = r
-            .body_mut()
-            .with_config()
-            .limit(64 << 20)
-            .read_to_vec()
-            .expect("body");
+        let headers: Vec<(&str, &str)> = if_none_match
+            .map(|tag| ("If-None-Match", tag))
+            .into_iter()
+            .collect();
+        let r = self.http.raw("GET", path, &headers, Body::Empty);
         Answer {
-            status,
-            content_type,
-            disposition,
-            etag,
-            body,
+            status: r.status,
+            content_type: r.header("content-type").to_string(),
+            disposition: r.header("content-disposition").to_string(),
+            etag: r.header("etag").to_string(),
+            body: r.body,
         }
     }
 
@@ -291,48 +262,24 @@ impl Api {
 
     /// `method path` with `token`, a text body (PUT) or a JSON body (POST): status and JSON.
     fn send(&self, method: &str, path: &str, token: &str, body: &str) -> (u16, Value) {
-        let url = format!("http://{}{path}", self.addr);
-        let auth = format!("Bearer {token}");
-        let r = match method {
-            "PUT" => self
-                .agent
-                .put(&url)
-                .header("Authorization", &auth)
-                .header("Content-Type", "text/plain")
-                .send(body),
-            _ => self
-                .agent
-                .post(&url)
-                .header("Authorization", &auth)
-                .header("Content-Type", "application/json")
-                .send(body),
+        let (method, content_type) = match method {
+            "PUT" => ("PUT", "text/plain"),
+            _ => ("POST", "application/json"),
         };
-        let mut r = r.expect("the daemon answers");
-        let status = r.status().as_u16();
-        let text = r.body_mut().read_to_string().unwrap_or_default();
-        (status, serde_json::from_str(&text).unwrap_or(Value::Null))
+        let body = Body::Text {
+            content_type: content_type.into(),
+            text: body.to_string(),
+        };
+        let r = self.http.with_token(token).raw(method, path, &[], body);
+        (
+            r.status,
+            serde_json::from_slice(&r.body).unwrap_or(Value::Null),
+        )
     }
 
     /// Sends `GET <raw target>` byte for byte (no client-side normalisation of `..` or `%2F`).
     fn raw_get(&self, target: &str) -> (u16, String) {
-        let mut s = std::net::TcpStream::connect(self.addr).expect("connect");
-        s.set_read_timeout(Some(Duration::from_secs(30)))
-            .expect("timeout");
-        write!(
-            s,
-            "GET {target} HTTP/1.1\r\nHost: localhost\r\nAuthorization: Bearer {}\r\nConnection: close\r\n\r\n",
-            self.token
-        )
-        .expect("send");
-        let mut buf = Vec::new();
-        s.read_to_end(&mut buf).expect("read");
-        let text = String::from_utf8_lossy(&buf).into_owned();
-        let status = text
-            .split_whitespace()
-            .nth(1)
-            .and_then(|c| c.parse().ok())
-            .unwrap_or(0);
-        (status, text)
+        self.http.get_exact(target)
     }
 }
 

@@ -37,71 +37,29 @@ async fn daemon() -> (RunningDaemon, tempfile::TempDir) {
     (d, dir)
 }
 
-/// A blocking HTTP client for one daemon (use it inside `spawn_blocking`).
+/// A blocking client for one daemon (use it inside `spawn_blocking`) with this file's helpers.
 #[derive(Clone)]
 struct Api {
-    base: String,
-    token: String,
-    agent: ureq::Agent,
+    http: common::api::Api,
 }
-
-type Reply = Result<ureq::http::Response<ureq::Body>, ureq::Error>;
 
 impl Api {
     fn new(d: &RunningDaemon, token: &str) -> Self {
-        let config = ureq::Agent::config_builder()
-            .http_status_as_error(false)
-            .timeout_global(Some(Duration::from_secs(60)))
-            .build();
         Self {
-            base: format!("http://{}", d.addr),
-            token: token.to_string(),
-            agent: ureq::Agent::new_with_config(config),
+            http: common::api::Api::new(d, token),
         }
     }
 
-    fn auth(&self) -> String {
-        format!("Bearer {}", self.token)
-    }
-
-    fn answer(r: Reply) -> (u16, Value) {
-        let r = r.expect("the daemon answers");
-        let status = r.status().as_u16();
-        let text = r.into_body().read_to_string().expect("a body");
-        (
-            status,
-            serde_json::from_str(&text).unwrap_or(Value::String(text)),
-        )
-    }
-
     fn get(&self, path: &str) -> (u16, Value) {
-        Self::answer(
-            self.agent
-                .get(format!("{}{path}", self.base))
-                .header("Authorization", self.auth())
-                .call(),
-        )
+        self.http.get(path)
     }
 
     fn post(&self, path: &str, body: Option<Value>) -> (u16, Value) {
-        let req = self
-            .agent
-            .post(format!("{}{path}", self.base))
-            .header("Authorization", self.auth());
-        Self::answer(match body {
-            Some(b) => req.send_json(b),
-            None => req.send_empty(),
-        })
+        self.http.post(path, body)
     }
 
     fn put(&self, path: &str, body: &[u8]) -> (u16, Value) {
-        Self::answer(
-            self.agent
-                .put(format!("{}{path}", self.base))
-                .header("Authorization", self.auth())
-                .content_type("text/plain")
-                .send(body),
-        )
+        self.http.put_bytes(path, body)
     }
 
     fn ok(&self, path: &str, body: Option<Value>) -> Value {
@@ -183,14 +141,9 @@ async fn scripts_upload_validate_and_refuse_bad_names() {
                 .any(|s| s["name"] == "quickstart" && s["source"] == "builtin"),
             "{list}"
         );
-        let r = api
-            .agent
-            .get(format!("{}/api/scripts/quickstart.rhai", api.base))
-            .header("Authorization", api.auth())
-            .call()
-            .expect("answers");
-        assert_eq!(r.status().as_u16(), 200);
-        let text = r.into_body().read_to_string().expect("text");
+        let r = api.http.get_reply("/api/scripts/quickstart.rhai");
+        assert_eq!(r.status, 200);
+        let text = r.body.as_str().expect("text").to_string();
         assert!(text.contains("quickstart.rhai"), "{text}");
 
         // A good upload: its dry run.
@@ -583,14 +536,7 @@ async fn scripts_delete_uploaded_only() {
     let api = Api::new(&d, &d.state.tokens.operator);
     let reader = Api::new(&d, &d.state.tokens.read_only);
     common::blocking(move || {
-        let delete = |who: &Api, name: &str| {
-            Api::answer(
-                who.agent
-                    .delete(format!("{}/api/scripts/{name}", who.base))
-                    .header("Authorization", who.auth())
-                    .call(),
-            )
-        };
+        let delete = |who: &Api, name: &str| who.http.delete(&format!("/api/scripts/{name}"));
         let (status, dry) = api.put("/api/scripts/tour", TOUR.as_bytes());
         assert_eq!(status, 200, "{dry}");
         // Read-only tokens cannot delete; built-in scripts cannot be deleted.

@@ -6,12 +6,12 @@ use axum::extract::rejection::{JsonRejection, PathRejection, QueryRejection};
 use axum::extract::{FromRequest, Request};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
-use serde::Serialize;
 use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
 /// The JSON body of every error response.
-#[derive(Debug, Clone, Serialize, ToSchema)]
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct ErrorBody {
     /// What went wrong.
     pub error: String,
@@ -20,12 +20,12 @@ pub struct ErrorBody {
     pub hint: Option<String>,
     /// Every problem found when a script or its parameters failed validation (422), each at
     /// its line and column, so a client can mark them without parsing `error`.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub violations: Vec<ViolationItem>,
 }
 
 /// One validation problem of a script or its parameters.
-#[derive(Debug, Clone, PartialEq, Serialize, ToSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
 pub struct ViolationItem {
     /// 1-based script line; `null` when the problem has no place in the script (a parameter).
     pub line: Option<u32>,

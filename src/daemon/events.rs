@@ -10,7 +10,7 @@ use std::collections::VecDeque;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use tokio::sync::broadcast;
 use utoipa::ToSchema;
 
@@ -21,7 +21,7 @@ pub const CHANNEL_CAPACITY: usize = 1024;
 pub const RECENT: usize = 200;
 
 /// One published event.
-#[derive(Debug, Clone, Serialize, ToSchema)]
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct HubEvent {
     /// Increasing number, also the SSE `id`.
     pub seq: u64,

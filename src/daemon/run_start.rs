@@ -38,7 +38,7 @@ pub struct StartRun {
 }
 
 /// A run that started.
-#[derive(Debug, Clone, Serialize, ToSchema)]
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct Started {
     pub run_id: String,
     pub script: String,

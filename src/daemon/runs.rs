@@ -11,7 +11,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use stagehand_devices::clock::RigClock;
 use tokio::sync::{broadcast, watch};
 use utoipa::ToSchema;
@@ -30,7 +30,7 @@ const MANUAL_WAIT: Duration = Duration::from_secs(10);
 const FORWARDER_DRAIN: Duration = Duration::from_secs(5);
 
 /// What the active run is doing, for `GET /api/status`.
-#[derive(Debug, Clone, Serialize, ToSchema)]
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct RunState {
     pub run_id: String,
     /// Script file name.

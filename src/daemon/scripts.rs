@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use axum::http::StatusCode;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
 use super::error::ApiError;
@@ -291,7 +291,7 @@ pub fn overrides(
 }
 
 /// One problem of a plan, at its script position.
-#[derive(Debug, Clone, Serialize, ToSchema)]
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct ViolationInfo {
     /// `error` (the plan cannot run) or `warning`.
     pub severity: String,
@@ -318,7 +318,7 @@ impl ViolationInfo {
 }
 
 /// Cost of one top-level block of a plan.
-#[derive(Debug, Clone, Serialize, ToSchema)]
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct BlockEstimate {
     /// Top-level block name (`""` for steps outside any block).
     pub block: String,
@@ -328,7 +328,7 @@ pub struct BlockEstimate {
 }
 
 /// What a plan will cost.
-#[derive(Debug, Clone, Serialize, ToSchema)]
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct EstimateInfo {
     pub rig_time_s: f64,
     /// Raw plus HDR frames.
@@ -399,7 +399,7 @@ impl EstimateInfo {
 
 /// The dry run of a script: what it will do and cost on the daemon's rig, and what is wrong
 /// with it. Nothing moves.
-#[derive(Debug, Clone, Serialize, ToSchema)]
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct DryRun {
     /// True when the plan can run (no errors; warnings are fine).
     pub ok: bool,

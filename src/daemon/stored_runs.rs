@@ -4,14 +4,14 @@
 
 use std::path::{Path, PathBuf};
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
 use crate::storage::Manifest;
 use crate::storage::layout::{INDEX, MANIFEST};
 
 /// What a run directory says about its run.
-#[derive(Debug, Clone, Serialize, ToSchema)]
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct StoredRun {
     pub run_id: String,
     /// Script file name (`""` when unreadable).

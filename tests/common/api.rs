@@ -1,9 +1,11 @@
-//! A blocking JSON client for a daemon under test (call it inside `spawn_blocking`).
+//! A blocking JSON client for a daemon under test, over `stagehand::client` (call it inside
+//! `spawn_blocking` or a thread of its own: each call waits on the test's runtime).
 
-use std::time::Duration;
-
+use reqwest::Method;
 use serde_json::Value;
+use stagehand::client::{Body, Client, EventStream, RawReply};
 use stagehand::daemon::RunningDaemon;
+use tokio::runtime::Handle;
 
 /// Status, headers and JSON body (or the text as a JSON string) of an answer.
 pub struct Reply {
@@ -23,25 +25,35 @@ impl Reply {
     }
 }
 
+impl From<RawReply> for Reply {
+    fn from(r: RawReply) -> Self {
+        let body = serde_json::from_slice(&r.body).unwrap_or_else(|_| Value::String(r.text()));
+        Reply {
+            status: r.status,
+            headers: r.headers,
+            body,
+        }
+    }
+}
+
 /// One daemon and one token.
 #[derive(Clone)]
 pub struct Api {
     pub base: String,
     pub token: String,
-    agent: ureq::Agent,
+    client: Client,
+    runtime: Handle,
 }
 
 impl Api {
-    /// A client of `d` with `token`.
+    /// A client of `d` with `token` (made inside the test's runtime).
     pub fn new(d: &RunningDaemon, token: &str) -> Self {
-        let config = ureq::Agent::config_builder()
-            .http_status_as_error(false)
-            .timeout_global(Some(Duration::from_secs(60)))
-            .build();
+        let client = Client::new(&d.addr.to_string(), Some(token)).expect("a client");
         Self {
-            base: format!("http://{}", d.addr),
+            base: client.base().to_string(),
             token: token.to_string(),
-            agent: ureq::Agent::new_with_config(config),
+            client,
+            runtime: Handle::current(),
         }
     }
 
@@ -50,36 +62,85 @@ impl Api {
         Self::new(d, &d.state.tokens.operator)
     }
 
-    fn reply(r: Result<ureq::http::Response<ureq::Body>, ureq::Error>) -> Reply {
-        let r = r.expect("the daemon answers");
-        let status = r.status().as_u16();
-        let headers = r
-            .headers()
-            .iter()
-            .map(|(n, v)| (n.as_str().to_string(), v.to_str().unwrap_or("").to_string()))
-            .collect();
-        let text = r.into_body().read_to_string().expect("a body");
-        let body = serde_json::from_str(&text).unwrap_or(Value::String(text));
-        Reply {
-            status,
-            headers,
-            body,
+    /// The same daemon with another token.
+    pub fn with_token(&self, token: &str) -> Self {
+        Self {
+            token: token.to_string(),
+            client: self.client.with_token(Some(token)),
+            ..self.clone()
         }
     }
 
-    /// `GET path` with the token.
+    /// `method path` with extra headers and a body, answered as it came (body bytes).
+    pub fn raw(&self, method: &str, path: &str, headers: &[(&str, &str)], body: Body) -> RawReply {
+        let method = Method::from_bytes(method.as_bytes()).expect("an HTTP method");
+        self.runtime
+            .block_on(self.client.raw_with(method, path, headers, body))
+            .expect("the daemon answers")
+    }
+
+    fn call(&self, client: &Client, method: Method, path: &str, body: Body) -> Reply {
+        self.runtime
+            .block_on(client.raw(method, path, body))
+            .expect("the daemon answers")
+            .into()
+    }
+
+    /// `GET path` with the token. A path with a dot segment (`/..`, `/%2e%2e`) goes byte for
+    /// byte over a socket of its own: an HTTP client resolves those before sending.
     pub fn get_reply(&self, path: &str) -> Reply {
-        Self::reply(
-            self.agent
-                .get(format!("{}{path}", self.base))
-                .header("Authorization", format!("Bearer {}", self.token))
-                .call(),
+        if has_dot_segment(path) {
+            return self.exact_get(path);
+        }
+        self.call(&self.client, Method::GET, path, Body::Empty)
+    }
+
+    /// `GET target` as written (no client-side resolution of `..` or `%2F`), on a
+    /// connection that closes after the answer: the status and the whole answer as text.
+    pub fn get_exact(&self, target: &str) -> (u16, String) {
+        use std::io::{Read, Write};
+        let host = self.base.trim_start_matches("http://");
+        let mut s = std::net::TcpStream::connect(host).expect("connect");
+        s.set_read_timeout(Some(std::time::Duration::from_secs(30)))
+            .expect("timeout");
+        write!(
+            s,
+            "GET {target} HTTP/1.1\r\nHost: {host}\r\nAuthorization: Bearer {}\r\nConnection: close\r\n\r\n",
+            self.token
         )
+        .expect("send");
+        let mut raw = Vec::new();
+        s.read_to_end(&mut raw).expect("read");
+        let text = String::from_utf8_lossy(&raw).into_owned();
+        let status = text
+            .split_whitespace()
+            .nth(1)
+            .and_then(|c| c.parse().ok())
+            .unwrap_or(0);
+        (status, text)
+    }
+
+    /// [`Api::get_exact`] as a [`Reply`] (a body with a length, not chunked).
+    fn exact_get(&self, target: &str) -> Reply {
+        let (status, text) = self.get_exact(target);
+        let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
+        let headers = head
+            .lines()
+            .skip(1)
+            .filter_map(|l| l.split_once(':'))
+            .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_string()))
+            .collect();
+        Reply {
+            status,
+            headers,
+            body: serde_json::from_str(body).unwrap_or_else(|_| Value::String(body.to_string())),
+        }
     }
 
     /// `GET path` without any token.
     pub fn get_anonymous(&self, path: &str) -> Reply {
-        Self::reply(self.agent.get(format!("{}{path}", self.base)).call())
+        let anonymous = self.client.with_token(None);
+        self.call(&anonymous, Method::GET, path, Body::Empty)
     }
 
     /// `GET path`: status and body.
@@ -90,37 +151,24 @@ impl Api {
 
     /// `POST path` with a raw JSON text body: status and body.
     pub fn post_text(&self, path: &str, body: &str) -> (u16, Value) {
-        let r = Self::reply(
-            self.agent
-                .post(format!("{}{path}", self.base))
-                .header("Authorization", format!("Bearer {}", self.token))
-                .header("Content-Type", "application/json")
-                .send(body),
-        );
+        let body = Body::Text {
+            content_type: "application/json".into(),
+            text: body.to_string(),
+        };
+        let r = self.call(&self.client, Method::POST, path, body);
         (r.status, r.body)
     }
 
     /// `POST path` with a JSON body (or none): status and body.
     pub fn post(&self, path: &str, body: Option<Value>) -> (u16, Value) {
-        let req = self
-            .agent
-            .post(format!("{}{path}", self.base))
-            .header("Authorization", format!("Bearer {}", self.token));
-        let r = Self::reply(match body {
-            Some(b) => req.send_json(b),
-            None => req.send_empty(),
-        });
+        let body = body.map_or(Body::Empty, Body::Json);
+        let r = self.call(&self.client, Method::POST, path, body);
         (r.status, r.body)
     }
 
     /// `DELETE path`: status and body.
     pub fn delete(&self, path: &str) -> (u16, Value) {
-        let r = Self::reply(
-            self.agent
-                .delete(format!("{}{path}", self.base))
-                .header("Authorization", format!("Bearer {}", self.token))
-                .call(),
-        );
+        let r = self.call(&self.client, Method::DELETE, path, Body::Empty);
         (r.status, r.body)
     }
 
@@ -130,6 +178,41 @@ impl Api {
         assert_eq!(s, status, "POST {path}: {v}");
         v
     }
+
+    /// `PUT path` with a text body: status and body.
+    pub fn put_text(&self, path: &str, body: &str) -> (u16, Value) {
+        self.put_bytes(path, body.as_bytes())
+    }
+
+    /// `PUT path` with a `text/plain` body that need not be UTF-8: status and body.
+    pub fn put_bytes(&self, path: &str, body: &[u8]) -> (u16, Value) {
+        let body = Body::Bytes {
+            content_type: "text/plain".into(),
+            bytes: body.to_vec(),
+        };
+        let r = self.call(&self.client, Method::PUT, path, body);
+        (r.status, r.body)
+    }
+
+    /// Opens `GET /api/events`, with `Last-Event-ID` when given.
+    pub fn sse(&self, last_event_id: Option<u64>) -> Sse {
+        let events = self
+            .runtime
+            .block_on(self.client.events(last_event_id))
+            .expect("the daemon streams events");
+        Sse {
+            events,
+            runtime: self.runtime.clone(),
+        }
+    }
+}
+
+/// True when `path` has a `.` or `..` segment, plain or percent-encoded (an HTTP client
+/// resolves those before sending).
+pub fn has_dot_segment(path: &str) -> bool {
+    path.split(['/', '?'])
+        .map(|seg| seg.to_ascii_lowercase().replace("%2e", "."))
+        .any(|seg| seg == "." || seg == "..")
 }
 
 /// One Server-Sent Event.
@@ -145,60 +228,19 @@ pub struct SseEvent {
 
 /// A live `GET /api/events` stream.
 pub struct Sse {
-    lines: std::io::Lines<std::io::BufReader<Box<dyn std::io::Read + Send>>>,
+    events: EventStream,
+    runtime: Handle,
 }
 
 impl Sse {
     /// The next event; `None` when the stream ended.
     pub fn next_event(&mut self) -> Option<SseEvent> {
-        let (mut kind, mut id, mut data) = (String::new(), None, String::new());
-        loop {
-            let line = self.lines.next()?.ok()?;
-            if line.is_empty() {
-                if kind.is_empty() && data.is_empty() {
-                    continue; // a keep-alive comment's end
-                }
-                let data = serde_json::from_str(&data).unwrap_or(Value::String(data));
-                return Some(SseEvent { kind, id, data });
-            }
-            if let Some(v) = line.strip_prefix("event:") {
-                kind = v.trim().to_string();
-            } else if let Some(v) = line.strip_prefix("id:") {
-                id = v.trim().parse().ok();
-            } else if let Some(v) = line.strip_prefix("data:") {
-                data.push_str(v.trim_start());
-            }
-        }
-    }
-}
-
-impl Api {
-    /// Opens `GET /api/events`, with `Last-Event-ID` when given.
-    pub fn sse(&self, last_event_id: Option<u64>) -> Sse {
-        let mut req = self
-            .agent
-            .get(format!("{}/api/events", self.base))
-            .header("Authorization", format!("Bearer {}", self.token));
-        if let Some(id) = last_event_id {
-            req = req.header("Last-Event-ID", id.to_string());
-        }
-        let r = req.call().expect("the daemon answers");
-        assert_eq!(r.status().as_u16(), 200);
-        let reader: Box<dyn std::io::Read + Send> = Box::new(r.into_body().into_reader());
-        Sse {
-            lines: std::io::BufRead::lines(std::io::BufReader::new(reader)),
-        }
-    }
-
-    /// `PUT path` with a text body: status and body.
-    pub fn put_text(&self, path: &str, body: &str) -> (u16, Value) {
-        let r = Self::reply(
-            self.agent
-                .put(format!("{}{path}", self.base))
-                .header("Authorization", format!("Bearer {}", self.token))
-                .content_type("text/plain")
-                .send(body),
-        );
-        (r.status, r.body)
+        let ev = self.runtime.block_on(self.events.next_raw())?.ok()?;
+        let data = serde_json::from_str(&ev.data).unwrap_or(Value::String(ev.data));
+        Some(SseEvent {
+            kind: ev.name,
+            id: ev.id,
+            data,
+        })
     }
 }

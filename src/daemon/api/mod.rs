@@ -9,6 +9,9 @@ mod scripts;
 mod status;
 mod verify;
 
+/// The run types [`crate::client`] decodes.
+pub use runs::{PromptAnswer, PromptReply, RunSummary};
+
 use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
 use utoipa::{Modify, OpenApi};
 use utoipa_axum::router::OpenApiRouter;

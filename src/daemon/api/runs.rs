@@ -19,7 +19,7 @@ use crate::daemon::stored_runs::{self, StoredRun};
 use crate::executor::Answer;
 
 /// One run as listed.
-#[derive(Debug, Clone, Serialize, ToSchema)]
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct RunSummary {
     #[serde(flatten)]
     pub run: StoredRun,
@@ -242,7 +242,7 @@ async fn abort_run(
 }
 
 /// The operator's answer to a prompt.
-#[derive(Debug, Clone, Copy, Deserialize, ToSchema, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, ToSchema, PartialEq, Eq)]
 #[serde(rename_all = "snake_case")]
 pub enum PromptAnswer {
     /// Done what the prompt asked; the run continues.
@@ -252,7 +252,7 @@ pub enum PromptAnswer {
 }
 
 /// `POST /api/runs/{id}/prompt`.
-#[derive(Debug, Clone, Deserialize, ToSchema)]
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PromptReply {
     pub answer: PromptAnswer,
