@@ -85,7 +85,9 @@ impl WriterHandle {
     /// (or `QUEUE_STEPS` steps) behind.
     pub async fn submit(&self, record: StepRecord, frames: StepFrames) -> Result<(), RunError> {
         let step = record.step;
-        let mib = step_bytes(&frames).div_ceil(1 << 20).min(BUDGET_MIB as usize) as u32;
+        let mib = step_bytes(&frames)
+            .div_ceil(1 << 20)
+            .min(BUDGET_MIB as usize) as u32;
         let stopped = || RunError::Storage {
             step,
             message: "the writer thread has stopped".into(),

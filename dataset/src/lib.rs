@@ -1,7 +1,12 @@
 //! Crash-safe run datasets: one directory per run with its manifest, plan, script, rig file,
 //! frames (16-bit PNG raw, OpenEXR HDR) and a SQLite index that doubles as the step journal.
 //!
-//! A step is done when its frames are durable (DESIGN.md invariant 4): [`RunStore::commit_step`]
+//! The engine writes a run through [`RunStore`]; the daemon, `stagehand verify` and any
+//! processing read it through [`RunReader`], which checks the index schema version first.
+//! This crate is the one place that knows the index schema; it does not depend on the engine
+//! (the engine's plan type implements [`RunPlan`]).
+//!
+//! A step is done when its frames are durable: [`RunStore::commit_step`]
 //! writes and fsyncs every frame file before the one transaction that indexes the frames and
 //! marks the step done. See [`run_store`] for the full contract and [`layout`] for the files.
 //!
@@ -17,9 +22,17 @@
 //! | [`exr_planes`] | OpenEXR f32 named channels (ground truth), ZIP |
 //! | [`hdr_merge`] | Debevec-style bracket merge |
 //! | [`index`] | SQLite schema and queries |
+//! | [`query`] | typed queries on the index, shared by writer and reader |
+//! | [`reader`] | a run opened read-only, schema version checked |
 //! | [`run_store`] | the writer of a run |
+//! | [`plan`] | what the dataset needs of a capture plan ([`RunPlan`]) |
 //! | [`verify`] | checks a run: files against the index, the index against the plan |
 //! | [`error`] | typed errors |
+
+//!
+//! The on-disk format, versioned, with a Python example that reads a run without stagehand:
+#![doc = include_str!("../FORMAT.md")]
+#![warn(missing_docs)]
 
 pub mod atomic;
 pub mod checksum;
@@ -31,7 +44,10 @@ pub mod hdr_merge;
 pub mod index;
 pub mod layout;
 pub mod manifest;
+pub mod plan;
 pub mod png16;
+pub mod query;
+pub mod reader;
 pub mod run_store;
 pub mod verify;
 
@@ -45,4 +61,9 @@ pub use frame_meta::{
 pub use hdr_merge::{HdrImage, merge_bracket};
 pub use index::{RunStatus, StepRecord, StoredFrame, StoredGroundTruth};
 pub use manifest::{Manifest, SimManifest};
+pub use plan::{PlannedCapture, PlannedStep, RunPlan, plan_hash};
+pub use query::{
+    FramePage, FrameQuery, JournalStep, JournalSummary, RecordedFile, RecordedKind, RunRow,
+};
+pub use reader::{RunReader, read_manifest};
 pub use run_store::RunStore;
