@@ -21,14 +21,34 @@
 //! | [`exr_hdr`] | OpenEXR f32 RGB, ZIP |
 //! | [`exr_planes`] | OpenEXR f32 named channels (ground truth), ZIP |
 //! | [`hdr_merge`] | Debevec-style bracket merge |
-//! | [`index`] | SQLite schema and queries |
+//! | [`index`] | SQLite schema, its versions and migrations, the writer's statements |
 //! | [`query`] | typed queries on the index, shared by writer and reader |
 //! | [`reader`] | a run opened read-only, schema version checked |
 //! | [`run_store`] | the writer of a run |
 //! | [`plan`] | what the dataset needs of a capture plan ([`RunPlan`]) |
 //! | [`verify`] | checks a run: files against the index, the index against the plan |
 //! | [`error`] | typed errors |
-
+//!
+//! Reading the raw frames of one camera, as digital numbers:
+//! ```no_run
+//! use stagehand_dataset::png16::decode_png16;
+//! use stagehand_dataset::{FrameKind, FrameQuery, RunReader};
+//!
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let run = RunReader::open("runs/quickstart-20261201-101500-1a2b3c4d".as_ref())?;
+//! let query = FrameQuery {
+//!     camera: Some("cam1".into()),
+//!     kind: Some(FrameKind::Raw),
+//!     ..FrameQuery::default()
+//! };
+//! for frame in run.frames(&query)?.frames {
+//!     let bytes = std::fs::read(run.dir().join(&frame.path))?;
+//!     let png = decode_png16(&frame.path, &bytes)?; // the sBIT shift undone
+//!     println!("step {} {:?}: {} samples", frame.meta.step, frame.meta.lamps_on, png.pixels.len());
+//! }
+//! # Ok(())
+//! # }
+//! ```
 //!
 //! The on-disk format, versioned, with a Python example that reads a run without stagehand:
 #![doc = include_str!("../FORMAT.md")]
