@@ -114,6 +114,38 @@ impl Action {
     }
 }
 
+/// The dataset stores the plan as `plan.json`, journals its steps and checks a run's frames
+/// against its capture steps.
+impl stagehand_dataset::RunPlan for Plan {
+    fn step_count(&self) -> usize {
+        self.steps.len()
+    }
+
+    fn step(&self, index: usize) -> Option<stagehand_dataset::PlannedStep<'_>> {
+        let step = self.steps.get(index)?;
+        let capture = match &step.action {
+            Action::Capture {
+                exposures_s,
+                cameras,
+                hdr,
+                ..
+            } => Some(stagehand_dataset::PlannedCapture {
+                cameras,
+                exposures: exposures_s.len(),
+                hdr: *hdr,
+            }),
+            _ => None,
+        };
+        Some(stagehand_dataset::PlannedStep {
+            kind: step.action.kind(),
+            block: &step.block,
+            line: step.at.line,
+            col: step.at.col,
+            capture,
+        })
+    }
+}
+
 impl Plan {
     /// SHA-256 of the plan's canonical JSON, hex encoded. Stored with the run; a resumed run
     /// refuses a plan whose hash differs.

@@ -229,7 +229,7 @@ pub struct Reopened {
 
 /// Opens an interrupted run (synchronously, before a runtime exists).
 pub fn reopen(run_dir: &Path) -> Result<Reopened, SessionError> {
-    let (store, manifest, plan) = RunStore::open(run_dir)?;
+    let (store, manifest, plan) = RunStore::open::<crate::plan::Plan>(run_dir)?;
     let origin = format!("{}/rig.toml", run_dir.display());
     let rig = RigSource::from_text(&manifest.rig_toml, &origin)?;
     Ok(Reopened {

@@ -9,20 +9,9 @@ pub fn hms(seconds: f64) -> String {
     format!("{}:{:02}:{:02}", total / 3600, total / 60 % 60, total % 60)
 }
 
-/// Bytes in binary units: "512 B", "1.50 KiB", "3.21 GiB".
-pub fn human_bytes(bytes: u64) -> String {
-    const UNITS: [&str; 6] = ["KiB", "MiB", "GiB", "TiB", "PiB", "EiB"];
-    if bytes < 1024 {
-        return format!("{bytes} B");
-    }
-    let mut value = bytes as f64 / 1024.0;
-    let mut unit = 0;
-    while value >= 1024.0 && unit + 1 < UNITS.len() {
-        value /= 1024.0;
-        unit += 1;
-    }
-    format!("{value:.2} {}", UNITS[unit])
-}
+/// Bytes in binary units ("512 B", "1.50 KiB"); lives with the dataset, whose verify report
+/// prints sizes too.
+pub use stagehand_dataset::verify::human_bytes;
 
 #[cfg(test)]
 mod tests {

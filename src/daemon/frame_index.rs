@@ -1,21 +1,19 @@
 //! Frames of the daemon's runs as the API shows them, read from each run's SQLite index.
 //!
-//! Every read opens the index read-only (`SQLITE_OPEN_READ_ONLY`, `query_only`), so listing
-//! frames never blocks or disturbs the writer of a run in progress (WAL readers see the last
+//! Every read goes through the dataset's [`RunReader`] (read-only, schema version checked), so
+//! listing frames never blocks or disturbs the writer of a run in progress (it sees the last
 //! committed step). Paths are never taken from the client: a run is a direct child directory
 //! of the runs directory whose name passes [`check_run_id`], and a frame file is found only
 //! through its index row, canonicalised and checked to lie inside the run's `frames/`.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::UNIX_EPOCH;
 
-use rusqlite::types::Value;
-use rusqlite::{Connection, OptionalExtension, Row};
 use serde::Serialize;
 use utoipa::ToSchema;
 
 use crate::storage::layout::{FRAMES_DIR, INDEX, MANIFEST};
+use crate::storage::{FrameQuery, RunReader, StorageError, StoredFrame};
 
 /// Longest run id accepted (run ids are `<stem>-<stamp>-<hash>[-n]`, far shorter).
 pub const MAX_RUN_ID_LEN: usize = 200;
@@ -24,81 +22,31 @@ pub const MAX_LIMIT: u32 = 1000;
 /// Frames a query returns when it does not say.
 pub const DEFAULT_LIMIT: u32 = 100;
 
-/// One frame as the API lists it: every per-frame fact of the index row (except the
-/// backend's free-form notes) plus where to download it.
+/// One frame as the API lists it: its index row (every per-frame fact, flattened) plus the
+/// run it belongs to and where to download it.
 #[derive(Debug, Clone, PartialEq, Serialize, ToSchema)]
 pub struct FrameInfo {
     pub run_id: String,
-    /// Row id in the run's index; stable while the run exists.
-    pub frame_id: i64,
-    /// Plan step that captured the frame.
-    pub step: usize,
-    pub camera: String,
-    /// `raw` (one exposure, 16-bit PNG) or `hdr` (merged bracket, 32-bit float EXR).
-    pub kind: String,
-    /// Free-form label of the capture.
-    pub label: String,
-    /// Enclosing script blocks joined with `/`.
-    pub block: String,
-    /// Index into the capture's exposure list (raw frames; null for HDR).
-    pub exposure_index: Option<usize>,
-    /// Exposure time in seconds (for HDR the longest of the bracket).
-    pub exposure_s: f64,
-    /// Every exposure of the bracket in seconds.
-    pub exposures_s: Vec<f64>,
-    /// Analogue gain (linear).
-    pub gain: f64,
-    /// Trigger id the frame answers (raw frames).
-    pub trigger_id: Option<u64>,
-    /// Ids of the lamps that were on.
-    pub lamps_on: Vec<String>,
-    /// Axis angles in degrees at capture time, by axis id.
-    pub axes_deg: BTreeMap<String, f64>,
-    pub laser_armed: bool,
-    pub laser_on: bool,
-    pub laser_colour_nm: u32,
-    pub laser_tilt_deg: Option<f64>,
-    pub laser_mount_deg: Option<f64>,
-    /// Fixture on the stage.
-    pub fixture: String,
-    /// Reflectometer cart position in millimetres, if known.
-    pub cart_mm: Option<f64>,
-    /// Rig time in seconds at which the exposure started.
-    pub rig_time_s: f64,
-    /// Wall-clock Unix time in seconds of the capture.
-    pub wall_time_unix_s: f64,
-    pub width: u32,
-    pub height: u32,
-    /// Significant bits per sample (sensor bits for raw, 32 for HDR).
-    pub bit_depth: u8,
-    /// Samples at the sensor's maximum (raw) or saturated in every exposure (HDR).
-    pub saturated_samples: u64,
-    /// File path relative to the run directory (`frames/…`).
-    pub path: String,
-    pub size_bytes: u64,
-    /// Hex SHA-256 of the file as stored.
-    pub sha256: String,
+    /// The index row: `frame_id`, `path`, `sha256`, `size_bytes` and the frame's metadata.
+    #[serde(flatten)]
+    pub frame: StoredFrame,
     /// Where to download it (`?format=png|tiff|exr`; default: as stored).
     pub url: String,
     /// An 8-bit PNG preview (`?size=16..1024`).
     pub thumbnail_url: String,
 }
 
-/// Filters of a frame query; `None` means any. All filters must match.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct FrameFilter {
-    pub camera: Option<String>,
-    /// Frames during which this lamp was on.
-    pub lamp: Option<String>,
-    pub step: Option<usize>,
-    /// `raw` or `hdr`.
-    pub kind: Option<String>,
-    pub label: Option<String>,
-    /// Enclosing blocks: a prefix of whole block names (see `where_clause`).
-    pub block: Option<String>,
-    /// At most [`MAX_LIMIT`]; [`DEFAULT_LIMIT`] when `None`.
-    pub limit: Option<u32>,
-    pub offset: Option<u64>,
+impl FrameInfo {
+    /// The API's view of index row `frame` of run `run_id`.
+    pub fn new(run_id: &str, frame: StoredFrame) -> FrameInfo {
+        let url = frame_url(run_id, frame.id);
+        FrameInfo {
+            run_id: run_id.to_string(),
+            thumbnail_url: format!("{url}/thumbnail"),
+            url,
+            frame,
+        }
+    }
 }
 
 /// One page of a frame query.
@@ -207,40 +155,17 @@ pub fn run_dir(runs_dir: &Path, run_id: &str) -> Result<PathBuf, FrameIndexError
     Ok(canon)
 }
 
-/// Opens a run's index read-only ([`crate::storage::index::open_read_only`]: never blocks or
-/// disturbs a writer and leaves no files behind).
-pub fn open_index(run_dir: &Path, run_id: &str) -> Result<Connection, FrameIndexError> {
-    crate::storage::index::open_read_only(run_dir).map_err(index_err(run_id))
+/// Opens a run read-only through the dataset's reader (never blocks or disturbs a writer,
+/// leaves no files behind, refuses an index schema it cannot read).
+pub fn open_index(run_dir: &Path, run_id: &str) -> Result<RunReader, FrameIndexError> {
+    RunReader::open(run_dir).map_err(index_err(run_id))
 }
 
-fn index_err(run_id: &str) -> impl Fn(rusqlite::Error) -> FrameIndexError + '_ {
+fn index_err(run_id: &str) -> impl Fn(StorageError) -> FrameIndexError + '_ {
     move |e| FrameIndexError::Index {
         run: run_id.to_string(),
         reason: e.to_string(),
     }
-}
-
-/// Columns read for a [`FrameInfo`], in the order [`frame_from_row`] expects.
-const COLUMNS: &str = "frames.id, frames.step, frames.path, frames.sha256, frames.size_bytes, \
-    frames.camera, frames.kind, frames.label, frames.block, frames.exposure_index, \
-    frames.exposure_s, frames.exposures_s, frames.gain, frames.trigger_id, frames.axes_deg, \
-    frames.lamps_on, frames.laser_armed, frames.laser_on, frames.laser_colour_nm, \
-    frames.laser_tilt_deg, frames.laser_mount_deg, frames.fixture, frames.cart_mm, \
-    frames.rig_time_s, frames.wall_time_unix_s, frames.width, frames.height, frames.bit_depth, \
-    frames.saturated_samples";
-
-/// A non-negative integer column.
-fn unsigned<T: TryFrom<i64>>(row: &Row<'_>, column: usize) -> rusqlite::Result<T> {
-    let v: i64 = row.get(column)?;
-    T::try_from(v).map_err(|_| rusqlite::Error::IntegralValueOutOfRange(column, v))
-}
-
-/// A JSON text column decoded into `T`.
-fn json<T: serde::de::DeserializeOwned>(row: &Row<'_>, column: usize) -> rusqlite::Result<T> {
-    let text: String = row.get(column)?;
-    serde_json::from_str(&text).map_err(|e| {
-        rusqlite::Error::FromSqlConversionFailure(column, rusqlite::types::Type::Text, Box::new(e))
-    })
 }
 
 /// The download URL of a frame.
@@ -248,136 +173,38 @@ pub fn frame_url(run_id: &str, frame_id: i64) -> String {
     format!("/api/runs/{run_id}/frames/{frame_id}")
 }
 
-fn frame_from_row(run_id: &str, r: &Row<'_>) -> rusqlite::Result<FrameInfo> {
-    let frame_id: i64 = r.get(0)?;
-    let url = frame_url(run_id, frame_id);
-    Ok(FrameInfo {
-        run_id: run_id.to_string(),
-        frame_id,
-        step: unsigned(r, 1)?,
-        path: r.get(2)?,
-        sha256: r.get(3)?,
-        size_bytes: unsigned(r, 4)?,
-        camera: r.get(5)?,
-        kind: r.get(6)?,
-        label: r.get(7)?,
-        block: r.get(8)?,
-        exposure_index: match r.get::<_, Option<i64>>(9)? {
-            Some(_) => Some(unsigned(r, 9)?),
-            None => None,
-        },
-        exposure_s: r.get(10)?,
-        exposures_s: json(r, 11)?,
-        gain: r.get(12)?,
-        trigger_id: match r.get::<_, Option<i64>>(13)? {
-            Some(_) => Some(unsigned(r, 13)?),
-            None => None,
-        },
-        axes_deg: json(r, 14)?,
-        lamps_on: json(r, 15)?,
-        laser_armed: r.get(16)?,
-        laser_on: r.get(17)?,
-        laser_colour_nm: unsigned(r, 18)?,
-        laser_tilt_deg: r.get(19)?,
-        laser_mount_deg: r.get(20)?,
-        fixture: r.get(21)?,
-        cart_mm: r.get(22)?,
-        rig_time_s: r.get(23)?,
-        wall_time_unix_s: r.get(24)?,
-        width: unsigned(r, 25)?,
-        height: unsigned(r, 26)?,
-        bit_depth: unsigned(r, 27)?,
-        saturated_samples: unsigned(r, 28)?,
-        thumbnail_url: format!("{url}/thumbnail"),
-        url,
-    })
-}
-
-/// The WHERE clause and parameters of `filter`.
-fn where_clause(filter: &FrameFilter) -> Result<(String, Vec<Value>), FrameIndexError> {
-    let mut clauses = Vec::new();
-    let mut params = Vec::new();
-    let mut text = |column: &str, value: &Option<String>| {
-        if let Some(v) = value {
-            params.push(Value::Text(v.clone()));
-            clauses.push(format!("frames.{column} = ?{}", params.len()));
-        }
-    };
-    text("camera", &filter.camera);
-    text("kind", &filter.kind);
-    text("label", &filter.label);
-    // A prefix of whole block names: `view 3` matches `view 3/light 1`, not `view 30`.
-    if let Some(block) = &filter.block {
-        params.push(Value::Text(block.trim_end_matches('/').to_string()));
-        let n = params.len();
-        clauses.push(format!(
-            "(frames.block = ?{n} OR substr(frames.block, 1, length(?{n}) + 1) = ?{n} || '/')"
-        ));
-    }
-    if let Some(lamp) = &filter.lamp {
-        params.push(Value::Text(lamp.clone()));
-        clauses.push(format!(
-            "EXISTS (SELECT 1 FROM json_each(frames.lamps_on) AS j WHERE j.value = ?{})",
-            params.len()
-        ));
-    }
-    if let Some(step) = filter.step {
-        let step = i64::try_from(step)
-            .map_err(|_| FrameIndexError::BadFilter(format!("step {step} is too large")))?;
-        params.push(Value::Integer(step));
-        clauses.push(format!("frames.step = ?{}", params.len()));
-    }
-    let sql = if clauses.is_empty() {
-        String::new()
-    } else {
-        format!(" WHERE {}", clauses.join(" AND "))
-    };
-    Ok((sql, params))
-}
-
 /// The frames of run `run_id` matching `filter`, one page of them, with the total count.
 pub fn query(
     runs_dir: &Path,
     run_id: &str,
-    filter: &FrameFilter,
+    filter: &FrameQuery,
 ) -> Result<FramePage, FrameIndexError> {
-    let limit = filter.limit.unwrap_or(DEFAULT_LIMIT);
-    if limit > MAX_LIMIT {
+    let limit = filter.limit.unwrap_or(u64::from(DEFAULT_LIMIT));
+    if limit > u64::from(MAX_LIMIT) {
         return Err(FrameIndexError::BadFilter(format!(
             "limit {limit} is above the maximum of {MAX_LIMIT}; page with `offset`"
         )));
     }
-    let offset = i64::try_from(filter.offset.unwrap_or(0))
-        .map_err(|_| FrameIndexError::BadFilter("offset is too large".into()))?;
+    if i64::try_from(filter.offset).is_err() {
+        return Err(FrameIndexError::BadFilter("offset is too large".into()));
+    }
+    if filter.step.is_some_and(|step| i64::try_from(step).is_err()) {
+        return Err(FrameIndexError::BadFilter("step is too large".into()));
+    }
     let dir = run_dir(runs_dir, run_id)?;
-    let conn = open_index(&dir, run_id)?;
-    let err = index_err(run_id);
-    let (clause, mut params) = where_clause(filter)?;
-    let total: i64 = conn
-        .query_row(
-            &format!("SELECT count(*) FROM frames{clause}"),
-            rusqlite::params_from_iter(params.iter()),
-            |r| r.get(0),
-        )
-        .map_err(&err)?;
-    params.push(Value::Integer(i64::from(limit)));
-    params.push(Value::Integer(offset));
-    let n = params.len();
-    let sql = format!(
-        "SELECT {COLUMNS} FROM frames{clause} ORDER BY frames.step, frames.id LIMIT ?{} OFFSET ?{n}",
-        n - 1
-    );
-    let mut stmt = conn.prepare(&sql).map_err(&err)?;
-    let frames = stmt
-        .query_map(rusqlite::params_from_iter(params.iter()), |r| {
-            frame_from_row(run_id, r)
+    let page = open_index(&dir, run_id)?
+        .frames(&FrameQuery {
+            limit: Some(limit),
+            ..filter.clone()
         })
-        .map_err(&err)?
-        .collect::<rusqlite::Result<Vec<_>>>()
-        .map_err(&err)?;
+        .map_err(index_err(run_id))?;
     Ok(FramePage {
-        total: u64::try_from(total).unwrap_or(0),
-        frames,
+        total: page.total,
+        frames: page
+            .frames
+            .into_iter()
+            .map(|f| FrameInfo::new(run_id, f))
+            .collect(),
     })
 }
 
@@ -389,24 +216,19 @@ pub fn frame(
     frame_id: i64,
 ) -> Result<(FrameInfo, PathBuf), FrameIndexError> {
     let dir = run_dir(runs_dir, run_id)?;
-    let conn = open_index(&dir, run_id)?;
-    let info = conn
-        .query_row(
-            &format!("SELECT {COLUMNS} FROM frames WHERE frames.id = ?1"),
-            [frame_id],
-            |r| frame_from_row(run_id, r),
-        )
-        .optional()
+    let info = open_index(&dir, run_id)?
+        .frame(frame_id)
         .map_err(index_err(run_id))?
+        .map(|f| FrameInfo::new(run_id, f))
         .ok_or_else(|| FrameIndexError::UnknownFrame {
             run: run_id.to_string(),
             frame_id,
         })?;
-    let file = frame_file(&dir, &info.path).map_err(|reason| {
+    let file = frame_file(&dir, &info.frame.path).map_err(|reason| {
         tracing::warn!(run = run_id, frame_id, "frame file refused: {reason}");
-        let gone = std::fs::symlink_metadata(dir.join(&info.path))
+        let gone = std::fs::symlink_metadata(dir.join(&info.frame.path))
             .is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound);
-        if gone && crate::storage::layout::is_frame_path(&info.path) {
+        if gone && crate::storage::layout::is_frame_path(&info.frame.path) {
             damaged(&dir, &info, "is missing".into())
         } else {
             FrameIndexError::FileUnavailable {
@@ -424,9 +246,9 @@ fn damaged(run_dir: &Path, info: &FrameInfo, reason: String) -> FrameIndexError 
     FrameIndexError::Damaged {
         run: info.run_id.clone(),
         run_dir: run_dir.to_path_buf(),
-        frame_id: info.frame_id,
-        step: info.step,
-        path: info.path.clone(),
+        frame_id: info.frame.id,
+        step: info.frame.meta.step,
+        path: info.frame.path.clone(),
         reason,
     }
 }
@@ -440,11 +262,11 @@ pub fn read_verified(info: &FrameInfo, file: &Path) -> Result<Vec<u8>, FrameInde
         .and_then(Path::parent)
         .unwrap_or(file)
         .to_path_buf();
-    let (bytes, found) =
-        crate::storage::checksum::read_hashed(file, info.size_bytes).map_err(|e| {
+    let (bytes, found) = crate::storage::checksum::read_hashed(file, info.frame.size_bytes)
+        .map_err(|e| {
             tracing::warn!(
                 run = info.run_id,
-                frame_id = info.frame_id,
+                frame_id = info.frame.id,
                 "cannot read {}: {e}",
                 file.display()
             );
@@ -453,16 +275,16 @@ pub fn read_verified(info: &FrameInfo, file: &Path) -> Result<Vec<u8>, FrameInde
             } else {
                 FrameIndexError::FileUnavailable {
                     run: info.run_id.clone(),
-                    frame_id: info.frame_id,
+                    frame_id: info.frame.id,
                     reason: e.to_string(),
                 }
             }
         })?;
-    if found != info.sha256 {
+    if found != info.frame.sha256 {
         tracing::warn!(
             run = info.run_id,
-            frame_id = info.frame_id,
-            path = info.path,
+            frame_id = info.frame.id,
+            path = info.frame.path,
             "frame file damaged"
         );
         return Err(damaged(
@@ -471,7 +293,7 @@ pub fn read_verified(info: &FrameInfo, file: &Path) -> Result<Vec<u8>, FrameInde
             format!(
                 "does not match the SHA-256 recorded when it was written (recorded {}, the \
                  file's {} bytes hash to {found})",
-                info.sha256,
+                info.frame.sha256,
                 bytes.len()
             ),
         ));
@@ -511,20 +333,14 @@ pub fn frame_file(run_dir: &Path, rel: &str) -> Result<PathBuf, String> {
 
 /// The frames of `step` in the run at `run_dir` (for `frame` events when the step is durable).
 pub fn frames_of_step(run_dir: &Path, run_id: &str, step: usize) -> Result<Vec<FrameInfo>, String> {
-    let step = i64::try_from(step).map_err(|e| e.to_string())?;
-    let conn = open_index(run_dir, run_id).map_err(|e| e.to_string())?;
-    let err = |e: rusqlite::Error| format!("run {run_id}: frames of step {step}: {e}");
-    let mut stmt = conn
-        .prepare(&format!(
-            "SELECT {COLUMNS} FROM frames WHERE frames.step = ?1 ORDER BY frames.id"
-        ))
-        .map_err(err)?;
-    let frames = stmt
-        .query_map([step], |r| frame_from_row(run_id, r))
-        .map_err(err)?
-        .collect::<rusqlite::Result<Vec<_>>>()
-        .map_err(err)?;
-    Ok(frames)
+    let frames = open_index(run_dir, run_id)
+        .map_err(|e| e.to_string())?
+        .frames_of_step(step)
+        .map_err(|e| format!("run {run_id}: frames of step {step}: {e}"))?;
+    Ok(frames
+        .into_iter()
+        .map(|f| FrameInfo::new(run_id, f))
+        .collect())
 }
 
 /// Unix time of the last modification of a run's index (the main file or its WAL): every
@@ -585,27 +401,21 @@ pub fn latest_for_camera(
     let mut best: Option<FrameInfo> = None;
     for (mtime, run_id, dir) in runs {
         if let Some(b) = &best
-            && mtime + MTIME_SLACK_S < b.wall_time_unix_s
+            && mtime + MTIME_SLACK_S < b.frame.meta.wall_time_unix_s
         {
             break;
         }
-        let found = open_index(&dir, &run_id).and_then(|conn| {
-            conn.query_row(
-                &format!(
-                    "SELECT {COLUMNS} FROM frames WHERE frames.camera = ?1
-                     ORDER BY frames.wall_time_unix_s DESC, frames.id DESC LIMIT 1"
-                ),
-                [camera],
-                |r| frame_from_row(&run_id, r),
-            )
-            .optional()
-            .map_err(index_err(&run_id))
+        let found = open_index(&dir, &run_id).and_then(|reader| {
+            reader
+                .latest_frame(camera)
+                .map(|f| f.map(|f| FrameInfo::new(&run_id, f)))
+                .map_err(index_err(&run_id))
         });
         match found {
             Ok(Some(f))
-                if best
-                    .as_ref()
-                    .is_none_or(|b| f.wall_time_unix_s > b.wall_time_unix_s) =>
+                if best.as_ref().is_none_or(|b| {
+                    f.frame.meta.wall_time_unix_s > b.frame.meta.wall_time_unix_s
+                }) =>
             {
                 best = Some(f)
             }
@@ -660,90 +470,6 @@ mod tests {
         }
         std::os::unix::fs::symlink(tmp.path().join("outside.txt"), run.join("frames/link.png"))?;
         assert!(frame_file(&run, "frames/link.png").is_err());
-        Ok(())
-    }
-
-    /// Inserts a frame row (step 0, camera `cam1`) into an index being written.
-    fn insert_frame(conn: &Connection, path: &str) -> rusqlite::Result<usize> {
-        conn.execute(
-            "INSERT INTO frames (step, path, sha256, size_bytes, camera, kind, label, block,
-                exposure_s, exposures_s, gain, axes_deg, lamps_on, laser_armed, laser_on,
-                laser_colour_nm, fixture, rig_time_s, wall_time_unix_s, width, height,
-                bit_depth, saturated_samples, notes)
-             VALUES (0, ?1, 'ab', 1, 'cam1', 'raw', 'l', 'b', 0.01, '[0.01]', 1.0,
-                '{\"turntable\":90.0}', '[\"lamp2\"]', 0, 0, 650, 'bumps', 1.0, 2.0, 4, 3,
-                12, 0, '{}')",
-            [path],
-        )
-    }
-
-    #[test]
-    fn reading_leaves_no_files_and_sees_a_writer_s_commits()
-    -> Result<(), Box<dyn std::error::Error>> {
-        let tmp = tempfile::tempdir()?;
-        // Characters an SQLite URI would misread unless escaped.
-        let runs = tmp.path().join("data ?%#& x").join("runs");
-        let run = runs.join("r1");
-        std::fs::create_dir_all(run.join(FRAMES_DIR))?;
-        std::fs::write(run.join(MANIFEST), "{}")?;
-        {
-            let w = Connection::open(run.join(INDEX))?;
-            w.pragma_update(None, "journal_mode", "WAL")?;
-            w.execute_batch(crate::storage::index::SCHEMA)?;
-            w.execute(
-                "INSERT INTO steps (idx, kind, block, script_line, script_col)
-                 VALUES (0, 'capture', 'b', 1, 1)",
-                [],
-            )?;
-            insert_frame(&w, "frames/a.png")?;
-        }
-        let listing = || -> std::io::Result<Vec<String>> {
-            let mut names: Vec<String> = std::fs::read_dir(&run)?
-                .filter_map(|e| e.ok()?.file_name().into_string().ok())
-                .collect();
-            names.sort();
-            Ok(names)
-        };
-        let before = listing()?;
-        assert_eq!(before, vec!["frames", INDEX, MANIFEST]);
-        let page = query(&runs, "r1", &FrameFilter::default())?;
-        assert_eq!(page.total, 1);
-        let f = &page.frames[0];
-        assert_eq!(
-            (f.camera.as_str(), f.lamps_on.clone()),
-            ("cam1", vec!["lamp2".to_string()])
-        );
-        assert_eq!(f.axes_deg.get("turntable"), Some(&90.0));
-        assert_eq!(f.url, "/api/runs/r1/frames/1");
-        assert_eq!(frames_of_step(&run, "r1", 0)?.len(), 1);
-        assert_eq!(listing()?, before, "a read left files in the run directory");
-
-        // A writer holds the index open: its commits are visible.
-        let w = Connection::open(run.join(INDEX))?;
-        w.pragma_update(None, "journal_mode", "WAL")?;
-        insert_frame(&w, "frames/b.png")?;
-        assert!(run.join(format!("{INDEX}-wal")).exists());
-        let lamp = FrameFilter {
-            lamp: Some("lamp2".into()),
-            camera: Some("cam1".into()),
-            ..FrameFilter::default()
-        };
-        assert_eq!(query(&runs, "r1", &lamp)?.total, 2);
-        let other = FrameFilter {
-            lamp: Some("lamp1".into()),
-            ..FrameFilter::default()
-        };
-        assert_eq!(query(&runs, "r1", &other)?.total, 0);
-        let too_many = FrameFilter {
-            limit: Some(MAX_LIMIT + 1),
-            ..FrameFilter::default()
-        };
-        assert!(matches!(
-            query(&runs, "r1", &too_many),
-            Err(FrameIndexError::BadFilter(_))
-        ));
-        let latest = latest_for_camera(&runs, "cam1")?.ok_or("no latest frame")?;
-        assert_eq!(latest.path, "frames/b.png");
         Ok(())
     }
 

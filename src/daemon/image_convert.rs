@@ -541,7 +541,8 @@ mod tests {
         let png = encode_png16("t.png", w, h, &px, 12, r#"{"camera":"c"}"#)?;
         assert_eq!(convert("raw", "t", png.clone(), ImageFormat::Png)?, png);
         // A frame of an old dataset (DN unshifted, no sBIT) converts to the same DN.
-        let old = crate::storage::png16::encode("t.png", w, h, &px, None, r#"{"camera":"c"}"#)?;
+        let old =
+            crate::storage::png16::encode_png16_unshifted("t.png", w, h, &px, r#"{"camera":"c"}"#)?;
         assert_eq!(
             convert("raw", "t", old.clone(), ImageFormat::Tiff)?,
             convert("raw", "t", png.clone(), ImageFormat::Tiff)?

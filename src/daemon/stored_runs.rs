@@ -1,5 +1,6 @@
 //! The run directories under `<data>/runs/`, read without taking their write lock (a run
-//! being written is read too): the manifest and a read-only look at the SQLite index. A broken
+//! being written is read too): the manifest and the dataset's read-only [`RunReader`]
+//! (`crate::storage::RunReader`). A broken
 //! directory is reported as `unreadable` with the reason, never as a server error.
 
 use std::path::{Path, PathBuf};
@@ -7,8 +8,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
-use crate::storage::Manifest;
-use crate::storage::layout::{INDEX, MANIFEST};
+use crate::storage::{Manifest, RunStatus, read_manifest};
 
 /// What a run directory says about its run.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
@@ -69,59 +69,31 @@ pub fn read(dir: &Path) -> StoredRun {
 }
 
 fn read_inner(dir: &Path, run_id: &str) -> Result<StoredRun, String> {
-    let manifest_path = dir.join(MANIFEST);
-    let bytes = std::fs::read(&manifest_path)
-        .map_err(|e| format!("cannot read {}: {e}", manifest_path.display()))?;
-    let manifest: Manifest = serde_json::from_slice(&bytes)
-        .map_err(|e| format!("{} is not a run manifest: {e}", manifest_path.display()))?;
-    let index = dir.join(INDEX);
-    let sql = |e: rusqlite::Error| format!("index {}: {e}", index.display());
-    // Read-only and leaving no `-shm`/`-wal` files behind in a finished run.
-    let conn = crate::daemon::frame_index::open_index(dir, run_id).map_err(|e| e.to_string())?;
-    let (status, message, updated_unix_s): (String, Option<String>, f64) = conn
-        .query_row(
-            "SELECT status, message, updated_unix_s FROM runs",
-            [],
-            |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
-        )
-        .map_err(sql)?;
-    let (steps_total, steps_done, rig_time_s, last_step_unix_s): (
-        i64,
-        i64,
-        Option<f64>,
-        Option<f64>,
-    ) = conn
-        .query_row(
-            "SELECT COUNT(*), COALESCE(SUM(status = 'done'), 0),
-                    MAX(CASE WHEN status = 'done' THEN rig_time_end_s END),
-                    MAX(wall_time_unix_s) FROM steps",
-            [],
-            |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?)),
-        )
-        .map_err(sql)?;
+    let manifest = read_manifest(dir).map_err(|e| e.to_string())?;
+    // Read-only, schema version checked, leaving no `-shm`/`-wal` files behind.
+    let reader = crate::daemon::frame_index::open_index(dir, run_id).map_err(|e| e.to_string())?;
+    let run = reader.run().map_err(|e| e.to_string())?;
+    let journal = reader.journal().map_err(|e| e.to_string())?;
     // A run still `running` in its index either runs now (the caller knows) or was
     // interrupted: then it ended with its last durable step.
-    let ended_unix_s = if status == "running" {
-        last_step_unix_s
+    let ended_unix_s = if run.status == RunStatus::Running {
+        journal.last_step_unix_s
     } else {
-        Some(updated_unix_s)
+        Some(run.updated_unix_s)
     };
-    let frames: i64 = conn
-        .query_row("SELECT COUNT(*) FROM frames", [], |r| r.get(0))
-        .map_err(sql)?;
-    let count = |n: i64| usize::try_from(n).unwrap_or(0);
+    let frames = reader.frame_count().map_err(|e| e.to_string())?;
     Ok(StoredRun {
         run_id: run_id.to_string(),
         script: manifest.script_name.clone(),
-        status,
-        message,
+        status: run.status.as_str().to_string(),
+        message: run.message,
         created_unix_s: manifest.created_unix_s,
         ended_unix_s,
         duration_s: ended_unix_s.map(|end| (end - manifest.created_unix_s).max(0.0)),
-        steps_done: count(steps_done),
-        steps_total: count(steps_total),
-        frames: count(frames),
-        rig_time_s: rig_time_s.unwrap_or(0.0),
+        steps_done: journal.steps_done,
+        steps_total: journal.steps_total,
+        frames: usize::try_from(frames).unwrap_or(usize::MAX),
+        rig_time_s: journal.rig_time_s.unwrap_or(0.0),
         error: None,
         manifest: Some(manifest),
     })

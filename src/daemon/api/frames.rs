@@ -19,7 +19,7 @@ use utoipa_axum::routes;
 
 use crate::daemon::error::{ApiError, ApiJson, ApiPath, ApiQuery, ApiResult};
 use crate::daemon::frame_index::{
-    self, DEFAULT_LIMIT, FrameFilter, FrameIndexError, FrameInfo, FramePage, MAX_LIMIT,
+    self, DEFAULT_LIMIT, FrameIndexError, FrameInfo, FramePage, MAX_LIMIT,
 };
 use crate::daemon::image_convert::{
     self, ConvertError, ImageFormat, THUMBNAIL_DEFAULT, THUMBNAIL_MAX, THUMBNAIL_MIN,
@@ -182,18 +182,18 @@ async fn list_frames(
     ApiPath(id): ApiPath<String>,
     ApiQuery(q): ApiQuery<FrameQuery>,
 ) -> ApiResult<ApiJson<FramePage>> {
-    let filter = FrameFilter {
+    let filter = crate::storage::FrameQuery {
         camera: q.camera,
         lamp: q.lamp,
         step: q.step,
         kind: q.kind.map(|k| match k {
-            KindParam::Raw => "raw".to_string(),
-            KindParam::Hdr => "hdr".to_string(),
+            KindParam::Raw => crate::storage::FrameKind::Raw,
+            KindParam::Hdr => crate::storage::FrameKind::Hdr,
         }),
         label: q.label,
         block: q.block,
-        limit: q.limit,
-        offset: q.offset,
+        limit: q.limit.map(u64::from),
+        offset: q.offset.unwrap_or(0),
     };
     let runs_dir = app.runs_dir();
     let page = blocking(move || Ok(frame_index::query(&runs_dir, &id, &filter)?)).await?;
@@ -202,7 +202,7 @@ async fn list_frames(
 
 /// A file name for `Content-Disposition`: run id and frame file stem (both plain).
 fn download_name(info: &FrameInfo, ext: &str) -> String {
-    let stem = std::path::Path::new(&info.path)
+    let stem = std::path::Path::new(&info.frame.path)
         .file_stem()
         .and_then(|s| s.to_str())
         .unwrap_or("frame");
@@ -284,14 +284,14 @@ async fn download_frame(
         .map_err(|_| ApiError::internal("the conversion limiter is closed"))?;
     blocking(move || {
         let (info, file) = frame_index::frame(&app.runs_dir(), &id, frame_id)?;
-        let stored = ImageFormat::stored(&info.kind);
+        let stored = ImageFormat::stored(info.frame.meta.kind.as_str());
         let format = match q.format {
             None => stored,
             Some(FormatParam::Png) => ImageFormat::Png,
             Some(FormatParam::Tiff) => ImageFormat::Tiff,
             Some(FormatParam::Exr) => ImageFormat::Exr,
         };
-        let etag = format!("\"{}-{}\"", info.sha256, format.extension());
+        let etag = format!("\"{}-{}\"", info.frame.sha256, format.extension());
         if not_modified(&headers, &etag) {
             return Ok(not_modified_response(&etag));
         }
@@ -304,7 +304,7 @@ async fn download_frame(
         }
         let bytes = frame_index::read_verified(&info, &file)?;
         let name = download_name(&info, format.extension());
-        let out = image_convert::convert(&info.kind, &name, bytes, format)?;
+        let out = image_convert::convert(info.frame.meta.kind.as_str(), &name, bytes, format)?;
         Ok(image_response(
             out,
             format.content_type(),
@@ -348,13 +348,13 @@ async fn thumbnail(
         .map_err(|_| ApiError::internal("the conversion limiter is closed"))?;
     blocking(move || {
         let (info, file) = frame_index::frame(&app.runs_dir(), &id, frame_id)?;
-        let etag = format!("\"{}-t{size}\"", info.sha256);
+        let etag = format!("\"{}-t{size}\"", info.frame.sha256);
         if not_modified(&headers, &etag) {
             return Ok(not_modified_response(&etag));
         }
         let bytes = frame_index::read_verified(&info, &file)?;
         let name = download_name(&info, "png");
-        let decoded = image_convert::decode(&info.kind, &name, &bytes)?;
+        let decoded = image_convert::decode(info.frame.meta.kind.as_str(), &name, &bytes)?;
         let png = image_convert::thumbnail(&decoded, size)?;
         Ok(image_response(
             png,

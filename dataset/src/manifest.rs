@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 pub struct Manifest {
     /// Dataset format version ([`Manifest::FORMAT_VERSION`] for new runs).
     pub format_version: u32,
-    /// Run id, equal to the run directory name. [`super::RunStore::create`] fills it in.
+    /// Run id, equal to the run directory name. [`crate::RunStore::create`] fills it in.
     pub run_id: String,
     /// Unix time (seconds) at which the run was created; also names the run directory.
     pub created_unix_s: f64,
@@ -21,7 +21,7 @@ pub struct Manifest {
     pub script_name: String,
     /// Full text of the capture script.
     pub script_text: String,
-    /// Hex SHA-256 of the plan's canonical JSON ([`crate::plan::Plan::hash`]); `create` fills
+    /// Hex SHA-256 of the plan's canonical JSON ([`crate::plan_hash`]); `create` fills
     /// it in when empty and refuses a value that does not match the plan.
     pub plan_hash: String,
     /// Script parameters with the values used.

@@ -10,7 +10,7 @@
 
 use std::io::Cursor;
 
-use super::error::{Result, StorageError};
+use crate::error::{Result, StorageError};
 
 /// Keyword of the iTXt chunk holding the frame metadata JSON.
 pub const ITXT_KEYWORD: &str = "stagehand";
@@ -86,9 +86,21 @@ pub fn encode_png16(
     )
 }
 
+/// A raw frame in the layout of datasets before MSB alignment (index schema < 3: DN unshifted,
+/// no sBIT chunk), so tests and tools can build old datasets that readers must still decode.
+pub fn encode_png16_unshifted(
+    name: &str,
+    width: u32,
+    height: u32,
+    pixels: &[u16],
+    metadata_json: &str,
+) -> Result<Vec<u8>> {
+    encode(name, width, height, pixels, None, metadata_json)
+}
+
 /// [`encode_png16`]; with `sensor_bits` `None`, the layout before MSB alignment (DN unshifted,
-/// no sBIT), which tests use to build old datasets.
-pub(crate) fn encode(
+/// no sBIT).
+fn encode(
     name: &str,
     width: u32,
     height: u32,
@@ -280,7 +292,7 @@ mod tests {
     #[test]
     fn old_files_without_sbit_read_unshifted() -> Result<()> {
         let pixels = dn(3, 2, 12);
-        let bytes = encode("old.png", 3, 2, &pixels, None, "{}")?;
+        let bytes = encode_png16_unshifted("old.png", 3, 2, &pixels, "{}")?;
         let back = decode_png16("old.png", &bytes)?;
         assert_eq!(back.pixels, pixels);
         assert_eq!((back.significant_bits, back.shift), (16, 0));

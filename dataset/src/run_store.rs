@@ -21,23 +21,24 @@ use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
-use super::atomic::{fsync_dir, remove_stale_temps, write_atomic, write_atomic_durable};
-use super::checksum::sha256_hex;
-use super::error::{Result, StorageError};
+use crate::atomic::{fsync_dir, remove_stale_temps, write_atomic, write_atomic_durable};
+use crate::checksum::sha256_hex;
+use crate::error::{Result, StorageError};
 use stagehand_devices::ground_truth::GroundTruthData;
 
-use super::exr_hdr::encode_exr;
-use super::exr_planes::encode_exr_planes;
-use super::frame_meta::{
+use crate::exr_hdr::encode_exr;
+use crate::exr_planes::encode_exr_planes;
+use crate::frame_meta::{
     FrameKind, FrameMeta, FramePixels, FrameToWrite, frame_file_name, ground_truth_file_name,
 };
-use super::index::{
+use crate::index::{
     Index, NewFrameRow, NewGroundTruthRow, RunStatus, StepRecord, StoredFrame, StoredGroundTruth,
 };
-use super::layout;
-use super::manifest::Manifest;
-use super::png16::{encode_png16, msb_shift};
-use crate::plan::Plan;
+use crate::layout;
+use crate::manifest::Manifest;
+use crate::plan::{RunPlan, is_capture, plan_hash};
+use crate::png16::{encode_png16, msb_shift};
+use crate::reader::read_manifest;
 
 /// How many `-N` suffixes `create` tries before giving up.
 const MAX_NAME_TRIES: u32 = 1000;
@@ -100,7 +101,7 @@ impl RunStore {
     /// Fills in `manifest.run_id` and `manifest.format_version`, and `manifest.plan_hash` when
     /// it is empty; a non-empty `plan_hash` that does not match `plan` is an error. On any
     /// error the half-made run directory is removed again.
-    pub fn create(root: &Path, mut manifest: Manifest, plan: &Plan) -> Result<RunStore> {
+    pub fn create<P: RunPlan>(root: &Path, mut manifest: Manifest, plan: &P) -> Result<RunStore> {
         let plan_json = serde_json::to_vec(plan).map_err(|source| StorageError::Json {
             op: "encode",
             path: root.join(layout::PLAN),
@@ -158,7 +159,7 @@ impl RunStore {
         match RunStore::populate(&dir, manifest, plan, &plan_json) {
             Ok(store) => {
                 fsync_dir(root)?;
-                tracing::info!(dir = %dir.display(), steps = plan.steps.len(), "created run");
+                tracing::info!(dir = %dir.display(), steps = plan.step_count(), "created run");
                 Ok(store)
             }
             Err(err) => {
@@ -171,7 +172,12 @@ impl RunStore {
     }
 
     /// Fills a freshly claimed run directory; `manifest.json` goes last.
-    fn populate(dir: &Path, manifest: Manifest, plan: &Plan, plan_json: &[u8]) -> Result<RunStore> {
+    fn populate<P: RunPlan>(
+        dir: &Path,
+        manifest: Manifest,
+        plan: &P,
+        plan_json: &[u8],
+    ) -> Result<RunStore> {
         let lock = lock_run(dir)?;
         let frames_dir = dir.join(layout::FRAMES_DIR);
         fs::create_dir(&frames_dir)
@@ -206,7 +212,7 @@ impl RunStore {
 
     /// Opens an existing run for resume: reads the manifest and plan, checks the plan against
     /// the manifest's plan hash, takes the run's write lock and removes stale temp files.
-    pub fn open(run_dir: &Path) -> Result<(RunStore, Manifest, Plan)> {
+    pub fn open<P: RunPlan>(run_dir: &Path) -> Result<(RunStore, Manifest, P)> {
         let dir = run_dir.to_path_buf();
         if !dir.is_dir() {
             return Err(StorageError::NotARun {
@@ -235,13 +241,12 @@ impl RunStore {
                 found,
             });
         }
-        let plan: Plan =
-            serde_json::from_slice(&plan_bytes).map_err(|source| StorageError::Json {
-                op: "decode",
-                path: dir.join(layout::PLAN),
-                source,
-            })?;
-        if plan.hash() != manifest.plan_hash {
+        let plan: P = serde_json::from_slice(&plan_bytes).map_err(|source| StorageError::Json {
+            op: "decode",
+            path: dir.join(layout::PLAN),
+            source,
+        })?;
+        if plan_hash(&plan).as_deref() != Some(manifest.plan_hash.as_str()) {
             tracing::warn!(
                 dir = %dir.display(),
                 "plan.json is intact but does not re-serialise to the same bytes (float parsing \
@@ -278,7 +283,7 @@ impl RunStore {
             manifest: manifest.clone(),
             _lock: lock,
         };
-        tracing::info!(dir = %store.dir.display(), done = store.done_steps()?.len(), steps = plan.steps.len(), "opened run for resume");
+        tracing::info!(dir = %store.dir.display(), done = store.done_steps()?.len(), steps = plan.step_count(), "opened run for resume");
         Ok((store, manifest, plan))
     }
 
@@ -478,21 +483,17 @@ impl RunStore {
     /// are not retaken stay done, with their frames.
     ///
     /// Every step must be a capture step of `plan`. Returns the steps made pending, in order.
-    pub fn retake(&mut self, plan: &Plan, steps: &[usize]) -> Result<Vec<usize>> {
-        let is_capture = |i: usize| {
-            plan.steps
-                .get(i)
-                .is_some_and(|s| matches!(s.action, crate::plan::Action::Capture { .. }))
-        };
+    pub fn retake<P: RunPlan>(&mut self, plan: &P, steps: &[usize]) -> Result<Vec<usize>> {
+        let is_capture = |i: usize| is_capture(plan, i);
         for &step in steps {
-            let reason = match plan.steps.get(step) {
+            let reason = match plan.step(step) {
                 None => format!(
                     "the plan has steps 0..={}",
-                    plan.steps.len().saturating_sub(1)
+                    plan.step_count().saturating_sub(1)
                 ),
-                Some(s) if !is_capture(step) => format!(
+                Some(s) if s.capture.is_none() => format!(
                     "it is a `{}` step, which records no frames; only capture steps are retaken",
-                    s.action.kind()
+                    s.kind
                 ),
                 Some(_) => continue,
             };
@@ -620,16 +621,6 @@ fn write_ground_truth(
             })
         })
         .collect()
-}
-
-/// Reads and decodes the run's `manifest.json`; a directory without one is not a run.
-pub(crate) fn read_manifest(dir: &Path) -> Result<Manifest> {
-    let bytes = read_required(dir, layout::MANIFEST)?;
-    serde_json::from_slice(&bytes).map_err(|source| StorageError::Json {
-        op: "decode",
-        path: dir.join(layout::MANIFEST),
-        source,
-    })
 }
 
 /// Reads a file the run layout requires, or says the directory is not a complete run.

@@ -10,7 +10,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use super::error::{Result, StorageError};
+use crate::error::{Result, StorageError};
 
 /// Suffix of every temp file this module creates.
 pub const TEMP_SUFFIX: &str = ".stagehand-tmp";

@@ -4,35 +4,84 @@ use std::collections::BTreeMap;
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use super::checksum::sha256_hex;
-use super::exr_hdr::decode_exr;
-use super::frame_meta::tests::sample_meta;
-use super::png16::decode_png16;
 use super::*;
-use crate::plan::{Action, Plan, SourcePos, Step};
+use crate::checksum::sha256_hex;
+use crate::exr_hdr::decode_exr;
+use crate::frame_meta::tests::sample_meta;
+use crate::plan::{PlannedCapture, PlannedStep, RunPlan};
+use crate::png16::decode_png16;
+use serde::{Deserialize, Serialize};
 
 type TestResult = std::result::Result<(), Box<dyn std::error::Error>>;
 
-fn step(index: usize, action: Action) -> Step {
-    Step {
-        index,
-        block: "turntable".into(),
-        at: SourcePos {
-            line: index as u32 + 1,
+/// A plan as the engine's would serialise, reduced to what the dataset reads of it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct Plan {
+    script: String,
+    params: BTreeMap<String, serde_json::Value>,
+    steps: Vec<Step>,
+}
+
+/// One step: its action kind, block, script line and (captures) what it records.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct Step {
+    index: usize,
+    block: String,
+    line: u32,
+    kind: String,
+    cameras: Vec<String>,
+    exposures_s: Vec<f64>,
+    hdr: bool,
+    /// Move targets (moves only), to give the plan a float to round-trip.
+    targets: BTreeMap<String, f64>,
+}
+
+impl RunPlan for Plan {
+    fn step_count(&self) -> usize {
+        self.steps.len()
+    }
+
+    fn step(&self, index: usize) -> Option<PlannedStep<'_>> {
+        let s = self.steps.get(index)?;
+        Some(PlannedStep {
+            kind: &s.kind,
+            block: &s.block,
+            line: s.line,
             col: 3,
-        },
-        action,
+            capture: (s.kind == "capture").then_some(PlannedCapture {
+                cameras: &s.cameras,
+                exposures: s.exposures_s.len(),
+                hdr: s.hdr,
+            }),
+        })
     }
 }
 
-fn capture(cameras: &[&str]) -> Action {
-    Action::Capture {
+impl Plan {
+    fn hash(&self) -> String {
+        crate::plan_hash(self).unwrap_or_default()
+    }
+}
+
+fn step(index: usize, kind: &str) -> Step {
+    Step {
+        index,
+        block: "turntable".into(),
+        line: index as u32 + 1,
+        kind: kind.into(),
+        cameras: Vec::new(),
+        exposures_s: Vec::new(),
+        hdr: false,
+        targets: BTreeMap::new(),
+    }
+}
+
+fn capture(index: usize, cameras: &[&str]) -> Step {
+    Step {
         exposures_s: vec![0.01, 0.02],
         cameras: cameras.iter().map(|c| c.to_string()).collect(),
-        gain: 1.0,
         hdr: true,
-        label: "sweep".into(),
-        min_interval_s: 0.0,
+        ..step(index, "capture")
     }
 }
 
@@ -41,20 +90,13 @@ fn plan() -> Plan {
         script: "sequences/olat scan.rhai".into(),
         params: BTreeMap::from([("steps".into(), serde_json::json!(3))]),
         steps: vec![
-            step(
-                0,
-                Action::Home {
-                    axes: vec!["turntable".into()],
-                },
-            ),
-            step(1, capture(&["cam5", "cam6"])),
-            step(2, capture(&["cam5"])),
-            step(
-                3,
-                Action::Move {
-                    targets: BTreeMap::from([("turntable".into(), 0.1 + 0.2)]),
-                },
-            ),
+            step(0, "home"),
+            capture(1, &["cam5", "cam6"]),
+            capture(2, &["cam5"]),
+            Step {
+                targets: BTreeMap::from([("turntable".into(), 0.1 + 0.2)]),
+                ..step(3, "move")
+            },
         ],
     }
 }
@@ -186,7 +228,7 @@ fn create_commit_reopen() -> TestResult {
     store.set_status(RunStatus::Failed, Some("camera cam6 timed out"))?;
     drop(store);
 
-    let (store, manifest, reopened_plan) = RunStore::open(&dir)?;
+    let (store, manifest, reopened_plan) = RunStore::open::<Plan>(&dir)?;
     assert_eq!(reopened_plan, plan);
     assert_eq!(manifest.plan_hash, plan.hash());
     assert_eq!(manifest.format_version, Manifest::FORMAT_VERSION);
@@ -236,7 +278,7 @@ fn plan_hash_mismatch_is_an_error() -> TestResult {
     let mut changed = plan();
     changed.steps.pop();
     fs::write(dir.join("plan.json"), serde_json::to_vec(&changed)?)?;
-    let err = RunStore::open(&dir)
+    let err = RunStore::open::<Plan>(&dir)
         .err()
         .ok_or("open accepted a changed plan")?;
     assert!(
@@ -293,7 +335,7 @@ fn crash_between_files_and_commit_leaves_no_duplicates() -> TestResult {
     fs::write(&stale, b"torn")?;
     drop(store);
 
-    let (mut store, _, _) = RunStore::open(&dir)?;
+    let (mut store, _, _) = RunStore::open::<Plan>(&dir)?;
     assert!(!stale.exists(), "open must remove stale temp files");
     assert_eq!(store.done_steps()?.into_iter().collect::<Vec<_>>(), vec![1]);
     assert_eq!(frame_row_count(&store)?, 5);
@@ -373,7 +415,7 @@ fn old_datasets_without_sample_shift_still_read() -> TestResult {
         let mut old_meta = f.meta.clone();
         old_meta.sample_shift = 0;
         let json = old_meta.embedded_json()?;
-        let bytes = super::png16::encode(&name, 4, 3, px, None, &json)?;
+        let bytes = crate::png16::encode_png16_unshifted(&name, 4, 3, px, &json)?;
         fs::write(dir.join("frames").join(&name), &bytes)?;
         conn.execute(
             "UPDATE frames SET sha256 = ?1, size_bytes = ?2 WHERE path = ?3",
@@ -392,11 +434,11 @@ fn old_datasets_without_sample_shift_still_read() -> TestResult {
          PRAGMA user_version = 1;",
     )?;
     drop(conn);
-    let report = verify::verify_run(&dir)?;
+    let report = verify::verify_run::<Plan>(&dir)?;
     assert!(report.ok, "{}", report.render());
     assert_eq!(report.files_checked, frames.len());
 
-    let (store, _, _) = RunStore::open(&dir)?;
+    let (store, _, _) = RunStore::open::<Plan>(&dir)?;
     let version: i32 = store
         .index()
         .conn()
@@ -512,7 +554,7 @@ fn unwritable_root_is_a_clear_error() -> TestResult {
 fn second_writer_and_incomplete_runs_are_refused() -> TestResult {
     let tmp = tempfile::tempdir()?;
     let store = RunStore::create(tmp.path(), manifest(), &plan())?;
-    let err = RunStore::open(store.dir())
+    let err = RunStore::open::<Plan>(store.dir())
         .err()
         .ok_or("second writer admitted")?;
     assert!(matches!(err, StorageError::RunInUse { .. }), "{err}");
@@ -520,7 +562,9 @@ fn second_writer_and_incomplete_runs_are_refused() -> TestResult {
     let half = tmp.path().join("half-made");
     fs::create_dir(&half)?;
     fs::write(half.join("plan.json"), b"{}")?;
-    let err = RunStore::open(&half).err().ok_or("incomplete run opened")?;
+    let err = RunStore::open::<Plan>(&half)
+        .err()
+        .ok_or("incomplete run opened")?;
     assert!(
         matches!(
             err,
@@ -590,7 +634,7 @@ fn verify_checks_the_index_against_the_plan() -> TestResult {
     let mut step1 = step1_frames();
     step1.push(hdr_frame(1, "cam6"));
     store.commit_step(&record(1, 9.5), step1)?;
-    let report = verify::verify_run(&dir)?;
+    let report = verify::verify_run::<Plan>(&dir)?;
     assert!(report.ok, "{}", report.render());
     assert_eq!(report.files_checked, 6);
 
@@ -604,7 +648,7 @@ fn verify_checks_the_index_against_the_plan() -> TestResult {
         ],
     )?;
     fs::write(dir.join("notes.txt"), "mine")?;
-    let report = verify::verify_run(&dir)?;
+    let report = verify::verify_run::<Plan>(&dir)?;
     let found: Vec<(verify::ProblemKind, Option<&str>, Option<usize>)> = report
         .problems
         .iter()

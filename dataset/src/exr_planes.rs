@@ -1,6 +1,6 @@
 //! Ground-truth images as OpenEXR: any number of named **f32** channels (depth `Z`, normal
 //! `X Y Z`, material `albedo.R …`), ZIP compression (16 scan lines per block), metadata JSON in
-//! the same `stagehand` text attribute as HDR frames ([`super::exr_hdr::ATTRIBUTE`]).
+//! the same `stagehand` text attribute as HDR frames ([`crate::exr_hdr::ATTRIBUTE`]).
 //!
 //! OpenEXR stores channels sorted by name; [`decode_exr_planes`] returns them in file order,
 //! so readers look channels up by name.
@@ -16,8 +16,8 @@ use exr::meta::attribute::{AttributeValue, LineOrder, Text};
 use exr::meta::header::LayerAttributes;
 use exr::prelude::SmallVec;
 
-use super::error::{Result, StorageError};
-use super::exr_hdr::{ATTRIBUTE, metadata_attribute, too_big_error};
+use crate::error::{Result, StorageError};
+use crate::exr_hdr::{ATTRIBUTE, metadata_attribute, too_big_error};
 
 /// A decoded multi-channel stagehand OpenEXR file.
 #[derive(Debug, Clone, PartialEq)]

@@ -13,11 +13,11 @@
 //!   know (in the run directory or in `frames/`).
 //!
 //! Files are checked in parallel (rayon); each is read once, hashed chunk by chunk as it is
-//! read ([`super::checksum::read_hashed`]) and decoded from that one read, and its size is
+//! read ([`crate::checksum::read_hashed`]) and decoded from that one read, and its size is
 //! compared before it is read, so a truncated file costs no hashing. Damaged, missing or unplanned frames of
 //! a capture step are repaired by capturing the step again: the report lists those steps and
 //! the exact `stagehand resume --retake` command. The index is opened read-only
-//! ([`super::index::open_read_only`]): verifying never takes the run's write lock, so a run
+//! ([`crate::RunReader`]): verifying never takes the run's write lock, so a run
 //! being written can be verified too (its in-flight step shows as orphan files).
 
 use std::collections::{BTreeMap, BTreeSet, HashSet};
@@ -26,21 +26,23 @@ use std::path::Path;
 
 use rayon::prelude::*;
 use serde::Serialize;
-use utoipa::ToSchema;
 
-use super::atomic::is_temp_name;
-use super::checksum::{read_hashed, sha256_hex};
-use super::error::{Result, StorageError};
-use super::exr_hdr::decode_exr;
-use super::exr_planes::decode_exr_planes;
-use super::frame_meta::{FrameKind, hdr_file_name, raw_file_name};
-use super::layout;
-use super::manifest::Manifest;
-use super::png16::decode_png16;
-use crate::plan::{Action, Plan};
+use crate::atomic::is_temp_name;
+use crate::checksum::{read_hashed, sha256_hex};
+use crate::error::{Result, StorageError};
+use crate::exr_hdr::decode_exr;
+use crate::exr_planes::decode_exr_planes;
+use crate::frame_meta::{hdr_file_name, raw_file_name};
+use crate::layout;
+use crate::manifest::Manifest;
+use crate::plan::{RunPlan, is_capture};
+use crate::png16::decode_png16;
+use crate::query::{RecordedFile, RecordedKind};
+use crate::reader::RunReader;
 
 /// What kind of problem [`verify_run`] found.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, ToSchema)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
+#[cfg_attr(feature = "utoipa", derive(utoipa::ToSchema))]
 #[serde(rename_all = "snake_case")]
 pub enum ProblemKind {
     /// A file the index records is not there.
@@ -68,7 +70,8 @@ pub enum ProblemKind {
 }
 
 /// One problem found by [`verify_run`].
-#[derive(Debug, Clone, PartialEq, Serialize, ToSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[cfg_attr(feature = "utoipa", derive(utoipa::ToSchema))]
 pub struct Problem {
     /// What kind of problem.
     pub kind: ProblemKind,
@@ -83,7 +86,8 @@ pub struct Problem {
 }
 
 /// The outcome of [`verify_run`]: what was checked and every problem found.
-#[derive(Debug, Clone, PartialEq, Serialize, ToSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[cfg_attr(feature = "utoipa", derive(utoipa::ToSchema))]
 pub struct VerifyReport {
     /// The run id (from the manifest).
     pub run_id: String,
@@ -110,28 +114,6 @@ pub struct VerifyReport {
     pub retake_command: Option<String>,
 }
 
-/// The format a recorded file claims.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Format {
-    /// 16-bit RGB PNG (raw frame).
-    Png,
-    /// f32 RGB OpenEXR (HDR frame).
-    Exr,
-    /// f32 named-channel OpenEXR (ground truth).
-    ExrPlanes,
-}
-
-/// A file an index row records.
-#[derive(Debug, Clone)]
-struct Recorded {
-    path: String,
-    sha256: String,
-    size_bytes: u64,
-    step: usize,
-    frame_id: i64,
-    format: Format,
-}
-
 /// A frame row as verification needs it.
 struct FrameRow {
     id: i64,
@@ -145,14 +127,14 @@ struct IndexContents {
     /// Journal rows: step index → (kind, done).
     steps: BTreeMap<usize, (String, bool)>,
     frames: Vec<FrameRow>,
-    recorded: Vec<Recorded>,
+    recorded: Vec<RecordedFile>,
 }
 
 /// Checks the run at `run_dir` (see the module documentation) and reports every problem.
 /// Errors only when `run_dir` is not a run directory at all (no manifest or index) or the
 /// manifest cannot be read; everything else is a [`Problem`] in the report.
-pub fn verify_run(run_dir: &Path) -> Result<VerifyReport> {
-    let manifest = super::run_store::read_manifest(run_dir)?;
+pub fn verify_run<P: RunPlan>(run_dir: &Path) -> Result<VerifyReport> {
+    let manifest = crate::reader::read_manifest(run_dir)?;
     if !run_dir.join(layout::INDEX).is_file() {
         return Err(StorageError::NotARun {
             path: run_dir.to_path_buf(),
@@ -160,7 +142,7 @@ pub fn verify_run(run_dir: &Path) -> Result<VerifyReport> {
         });
     }
     let mut problems = Vec::new();
-    let plan = read_plan(run_dir, &manifest, &mut problems);
+    let plan: Option<P> = read_plan(run_dir, &manifest, &mut problems);
     let contents = match read_index(run_dir) {
         Ok(c) => c,
         Err(e) => {
@@ -228,7 +210,7 @@ pub fn verify_run(run_dir: &Path) -> Result<VerifyReport> {
         steps_done: contents.steps.values().filter(|(_, done)| *done).count(),
         steps_total: plan
             .as_ref()
-            .map_or(contents.steps.len(), |p| p.steps.len()),
+            .map_or(contents.steps.len(), |p| p.step_count()),
         files_checked: contents.recorded.len(),
         bytes_checked,
         ok: problems.is_empty(),
@@ -254,16 +236,13 @@ pub fn retake_command(steps: &[usize], run_dir: &str) -> String {
     format!("stagehand resume --retake {} {dir}", list.join(","))
 }
 
-/// True when step `step` of `plan` is a capture.
-fn is_capture(plan: &Plan, step: usize) -> bool {
-    plan.steps
-        .get(step)
-        .is_some_and(|s| matches!(s.action, Action::Capture { .. }))
-}
-
 /// Reads `plan.json` and checks it against the manifest's plan hash; a problem (and `None`)
 /// when it cannot be used.
-fn read_plan(run_dir: &Path, manifest: &Manifest, problems: &mut Vec<Problem>) -> Option<Plan> {
+fn read_plan<P: RunPlan>(
+    run_dir: &Path,
+    manifest: &Manifest,
+    problems: &mut Vec<Problem>,
+) -> Option<P> {
     let mut problem = |message: String| {
         problems.push(Problem {
             kind: ProblemKind::Plan,
@@ -302,82 +281,24 @@ fn read_plan(run_dir: &Path, manifest: &Manifest, problems: &mut Vec<Problem>) -
 }
 
 /// Reads the run status, the journal and every recorded file from the index (read-only).
-fn read_index(run_dir: &Path) -> rusqlite::Result<IndexContents> {
-    let conn = super::index::open_read_only(run_dir)?;
-    let status: String = conn.query_row("SELECT status FROM runs", [], |r| r.get(0))?;
-    let mut steps = BTreeMap::new();
-    let mut stmt = conn.prepare("SELECT idx, kind, status FROM steps ORDER BY idx")?;
-    let rows = stmt.query_map([], |r| {
-        Ok((
-            r.get::<_, i64>(0)?,
-            r.get::<_, String>(1)?,
-            r.get::<_, String>(2)?,
-        ))
-    })?;
-    for row in rows {
-        let (idx, kind, status) = row?;
-        steps.insert(to_usize(idx), (kind, status == "done"));
-    }
-    let mut frames = Vec::new();
-    let mut recorded = Vec::new();
-    let mut stmt =
-        conn.prepare("SELECT id, step, path, sha256, size_bytes, kind FROM frames ORDER BY id")?;
-    let rows = stmt.query_map([], |r| {
-        Ok((
-            r.get::<_, i64>(0)?,
-            r.get::<_, i64>(1)?,
-            r.get::<_, String>(2)?,
-            r.get::<_, String>(3)?,
-            r.get::<_, i64>(4)?,
-            r.get::<_, String>(5)?,
-        ))
-    })?;
-    for row in rows {
-        let (id, step, path, sha256, size, kind) = row?;
-        let step = to_usize(step);
-        recorded.push(Recorded {
-            path: path.clone(),
-            sha256,
-            size_bytes: u64::try_from(size).unwrap_or(u64::MAX),
-            step,
-            frame_id: id,
-            format: if kind == FrameKind::Hdr.as_str() {
-                Format::Exr
-            } else {
-                Format::Png
-            },
-        });
-        frames.push(FrameRow { id, step, path });
-    }
-    // Schema 1 (datasets from before ground truth) has no ground_truth table.
-    let has_ground_truth: bool = conn.query_row(
-        "SELECT count(*) > 0 FROM sqlite_master WHERE type = 'table' AND name = 'ground_truth'",
-        [],
-        |r| r.get(0),
-    )?;
-    if !has_ground_truth {
-        return Ok(IndexContents {
-            status,
-            steps,
-            frames,
-            recorded,
-        });
-    }
-    let mut stmt = conn
-        .prepare("SELECT frame_id, step, path, sha256, size_bytes FROM ground_truth ORDER BY id")?;
-    let rows = stmt.query_map([], |r| {
-        Ok(Recorded {
-            frame_id: r.get(0)?,
-            step: to_usize(r.get(1)?),
-            path: r.get(2)?,
-            sha256: r.get(3)?,
-            size_bytes: u64::try_from(r.get::<_, i64>(4)?).unwrap_or(u64::MAX),
-            format: Format::ExrPlanes,
+fn read_index(run_dir: &Path) -> Result<IndexContents> {
+    let reader = RunReader::open(run_dir)?;
+    let status = reader.run()?.status.as_str().to_string();
+    let steps = reader
+        .steps()?
+        .into_iter()
+        .map(|s| (s.step, (s.kind, s.done)))
+        .collect();
+    let recorded = reader.recorded_files()?;
+    let frames = recorded
+        .iter()
+        .filter(|r| r.kind != RecordedKind::GroundTruth)
+        .map(|r| FrameRow {
+            id: r.frame_id,
+            step: r.step,
+            path: r.path.clone(),
         })
-    })?;
-    for row in rows {
-        recorded.push(row?);
-    }
+        .collect();
     Ok(IndexContents {
         status,
         steps,
@@ -386,14 +307,9 @@ fn read_index(run_dir: &Path) -> rusqlite::Result<IndexContents> {
     })
 }
 
-/// A stored integer as an index (negative values, which no writer produces, map far away).
-fn to_usize(v: i64) -> usize {
-    usize::try_from(v).unwrap_or(usize::MAX)
-}
-
 /// Checks one recorded file: path, presence, size, SHA-256, decoding. Returns the bytes read
 /// and the problem, if any.
-fn check_file(run_dir: &Path, r: &Recorded) -> (u64, Option<Problem>) {
+fn check_file(run_dir: &Path, r: &RecordedFile) -> (u64, Option<Problem>) {
     let problem = |kind, message: String| Problem {
         kind,
         path: Some(r.path.clone()),
@@ -401,8 +317,8 @@ fn check_file(run_dir: &Path, r: &Recorded) -> (u64, Option<Problem>) {
         frame_id: Some(r.frame_id),
         message,
     };
-    let what = match r.format {
-        Format::ExrPlanes => "ground-truth file",
+    let what = match r.kind {
+        RecordedKind::GroundTruth => "ground-truth file",
         _ => "frame file",
     };
     if !layout::is_frame_path(&r.path) {
@@ -491,10 +407,10 @@ fn check_file(run_dir: &Path, r: &Recorded) -> (u64, Option<Problem>) {
             )),
         );
     }
-    let decoded = match r.format {
-        Format::Png => decode_png16(&r.path, &bytes).map(drop),
-        Format::Exr => decode_exr(&r.path, &bytes).map(drop),
-        Format::ExrPlanes => decode_exr_planes(&r.path, &bytes).map(drop),
+    let decoded = match r.kind {
+        RecordedKind::Raw => decode_png16(&r.path, &bytes).map(drop),
+        RecordedKind::Hdr => decode_exr(&r.path, &bytes).map(drop),
+        RecordedKind::GroundTruth => decode_exr_planes(&r.path, &bytes).map(drop),
     };
     match decoded {
         Ok(()) => (n, None),
@@ -513,23 +429,18 @@ fn check_file(run_dir: &Path, r: &Recorded) -> (u64, Option<Problem>) {
 }
 
 /// The frame files the plan asks of capture step `step` (relative paths).
-fn planned_frames(plan: &Plan, step: usize) -> BTreeSet<String> {
+fn planned_frames<P: RunPlan>(plan: &P, step: usize) -> BTreeSet<String> {
     let mut out = BTreeSet::new();
-    let Some(Action::Capture {
-        exposures_s,
-        cameras,
-        hdr,
-        ..
-    }) = plan.steps.get(step).map(|s| &s.action)
-    else {
+    let Some(capture) = plan.step(step).and_then(|s| s.capture) else {
         return out;
     };
+    let (cameras, exposures, hdr) = (capture.cameras, capture.exposures, capture.hdr);
     let frame = |name: String| format!("{}/{name}", layout::FRAMES_DIR);
     for camera in cameras {
-        for e in 0..exposures_s.len() {
+        for e in 0..exposures {
             out.insert(frame(raw_file_name(step, camera, e)));
         }
-        if *hdr && exposures_s.len() > 1 {
+        if hdr && exposures > 1 {
             out.insert(frame(hdr_file_name(step, camera)));
         }
     }
@@ -537,13 +448,12 @@ fn planned_frames(plan: &Plan, step: usize) -> BTreeSet<String> {
 }
 
 /// Checks the journal and the frame rows against the plan.
-fn check_against_plan(plan: &Plan, contents: &IndexContents, problems: &mut Vec<Problem>) {
+fn check_against_plan<P: RunPlan>(plan: &P, contents: &IndexContents, problems: &mut Vec<Problem>) {
     let mut by_step: BTreeMap<usize, Vec<&FrameRow>> = BTreeMap::new();
     for f in &contents.frames {
         by_step.entry(f.step).or_default().push(f);
     }
-    for step in &plan.steps {
-        let i = step.index;
+    for (i, step) in (0..plan.step_count()).filter_map(|i| Some((i, plan.step(i)?))) {
         let index_problem = |message: String| Problem {
             kind: ProblemKind::Index,
             path: Some(layout::INDEX.into()),
@@ -559,11 +469,11 @@ fn check_against_plan(plan: &Plan, contents: &IndexContents, problems: &mut Vec<
                 continue;
             }
             Some((kind, done)) => {
-                if kind != step.action.kind() {
+                if kind != step.kind {
                     problems.push(index_problem(format!(
                         "the journal says `{kind}`, the plan `{}`; the index belongs to another \
                          plan or is damaged",
-                        step.action.kind()
+                        step.kind
                     )));
                 }
                 *done
@@ -618,7 +528,7 @@ fn check_against_plan(plan: &Plan, contents: &IndexContents, problems: &mut Vec<
             });
         }
     }
-    for &extra in contents.steps.keys().filter(|&&k| k >= plan.steps.len()) {
+    for &extra in contents.steps.keys().filter(|&&k| k >= plan.step_count()) {
         problems.push(Problem {
             kind: ProblemKind::Index,
             path: Some(layout::INDEX.into()),
@@ -627,7 +537,7 @@ fn check_against_plan(plan: &Plan, contents: &IndexContents, problems: &mut Vec<
             message: format!(
                 "the journal has step {extra} but the plan has {} steps; the index belongs to \
                  another plan or is damaged",
-                plan.steps.len()
+                plan.step_count()
             ),
         });
     }
@@ -735,7 +645,7 @@ impl VerifyReport {
             self.steps_done,
             self.steps_total,
             self.files_checked,
-            crate::units::human_bytes(self.bytes_checked)
+            human_bytes(self.bytes_checked)
         );
         if self.ok {
             out.push_str(
@@ -769,6 +679,21 @@ impl VerifyReport {
         }
         out
     }
+}
+
+/// Bytes in binary units: "512 B", "1.50 KiB", "3.21 GiB".
+pub fn human_bytes(bytes: u64) -> String {
+    const UNITS: [&str; 6] = ["KiB", "MiB", "GiB", "TiB", "PiB", "EiB"];
+    if bytes < 1024 {
+        return format!("{bytes} B");
+    }
+    let mut value = bytes as f64 / 1024.0;
+    let mut unit = 0;
+    while value >= 1024.0 && unit + 1 < UNITS.len() {
+        value /= 1024.0;
+        unit += 1;
+    }
+    format!("{value:.2} {}", UNITS[unit])
 }
 
 #[cfg(test)]

@@ -17,8 +17,8 @@ use exr::math::Vec2;
 use exr::meta::attribute::{AttributeValue, LineOrder, Text};
 use exr::meta::header::LayerAttributes;
 
-use super::error::{Result, StorageError};
-use super::png16::rgb_samples;
+use crate::error::{Result, StorageError};
+use crate::png16::rgb_samples;
 
 /// Name of the text attribute holding the frame metadata JSON.
 pub const ATTRIBUTE: &str = "stagehand";

@@ -135,6 +135,21 @@ pub enum StorageError {
         found: String,
     },
 
+    /// The run's index has a schema version this build cannot read.
+    #[error(
+        "run {path}: its index has schema version {found}, this stagehand reads versions 1 to \
+         {supported}; read it with a newer stagehand (version 0 is a run whose creation was \
+         interrupted: it holds no frames and can be deleted)"
+    )]
+    UnsupportedSchema {
+        /// The run directory.
+        path: PathBuf,
+        /// The version in the index (`PRAGMA user_version`).
+        found: i32,
+        /// The newest version this build reads.
+        supported: i32,
+    },
+
     /// Another process holds the run open for writing.
     #[error(
         "run {path} is already open for writing by another stagehand process; stop that \

@@ -6,10 +6,11 @@ use std::sync::Arc;
 use serde::{Deserialize, Serialize};
 use stagehand_devices::ground_truth::GroundTruthData;
 
-use super::layout::sanitize;
+use crate::layout::sanitize;
 
 /// Whether a frame is one raw exposure or an HDR merge of a bracket.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "utoipa", derive(utoipa::ToSchema))]
 #[serde(rename_all = "snake_case")]
 pub enum FrameKind {
     /// One exposure, 16-bit PNG.
@@ -40,6 +41,7 @@ impl FrameKind {
 /// Every fact about one frame. One row per frame in the `frames` table; also embedded in the
 /// image file (without the wall time, so identical captures give identical files).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "utoipa", derive(utoipa::ToSchema))]
 pub struct FrameMeta {
     /// Plan step that captured the frame.
     pub step: usize,
@@ -92,7 +94,7 @@ pub struct FrameMeta {
     /// Left shift of the samples in the raw PNG (`16 - bit_depth`: MSB-aligned, so viewers
     /// show the frame; the PNG's sBIT chunk says the same). 0 for HDR frames and for raw
     /// frames of datasets written before MSB alignment (index schema < 3). The storage writer
-    /// sets it; readers get DN back from [`super::png16::decode_png16`].
+    /// sets it; readers get DN back from [`crate::png16::decode_png16`].
     #[serde(default)]
     pub sample_shift: u8,
     /// Samples at the sensor's maximum (raw) or saturated in every exposure (HDR).
@@ -148,7 +150,7 @@ impl FramePixels {
     }
 }
 
-/// A frame handed to [`super::RunStore::commit_step`].
+/// A frame handed to [`crate::RunStore::commit_step`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct FrameToWrite {
     /// Its metadata.

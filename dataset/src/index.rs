@@ -28,17 +28,18 @@ use std::time::{SystemTime, UNIX_EPOCH};
 use rusqlite::{Connection, OpenFlags, OptionalExtension, Transaction, params};
 use serde::{Deserialize, Serialize};
 
-use super::error::{Result, StorageError};
-use super::frame_meta::{FrameKind, FrameMeta};
-use super::manifest::Manifest;
-use crate::plan::Plan;
+use crate::error::{Result, StorageError};
+use crate::frame_meta::FrameMeta;
+use crate::manifest::Manifest;
+use crate::plan::RunPlan;
 
 /// Schema version, stored in `PRAGMA user_version`. Versions 1 (no `ground_truth` table) and
-/// 2 (no `frames.sample_shift`) are upgraded in place by [`Index::open`].
+/// 2 (no `frames.sample_shift`) are upgraded in place when [`crate::RunStore::open`] opens the
+/// run; [`crate::RunReader`] reads them without changing the file.
 pub const SCHEMA_VERSION: i32 = 3;
 
 /// What schema version 3 added to version 2: the left shift of each raw frame's samples in its
-/// PNG (MSB alignment, see [`super::png16`]). Rows of older datasets get 0: their PNGs hold
+/// PNG (MSB alignment, see [`crate::png16`]). Rows of older datasets get 0: their PNGs hold
 /// the DN unshifted.
 pub const SAMPLE_SHIFT_SCHEMA: &str =
     "ALTER TABLE frames ADD COLUMN sample_shift INTEGER NOT NULL DEFAULT 0;";
@@ -72,7 +73,7 @@ CREATE TABLE runs (
 ) STRICT;
 CREATE TABLE steps (
     idx               INTEGER PRIMARY KEY,    -- Plan step index
-    kind              TEXT NOT NULL,          -- Action::kind()
+    kind              TEXT NOT NULL,          -- the step's action kind
     block             TEXT NOT NULL,
     script_line       INTEGER NOT NULL,
     script_col        INTEGER NOT NULL,
@@ -161,7 +162,7 @@ impl RunStatus {
 pub struct StepRecord {
     /// Plan step index.
     pub step: usize,
-    /// Action kind ([`crate::plan::Action::kind`]).
+    /// Action kind ([`crate::plan::PlannedStep::kind`]).
     pub kind: String,
     /// Enclosing block names joined with `/`.
     pub block: String,
@@ -173,9 +174,15 @@ pub struct StepRecord {
     pub wall_time_unix_s: f64,
 }
 
-/// A frame row of the index.
-#[derive(Debug, Clone, PartialEq)]
+/// A frame row of the index: where the file is, its checksum, and every per-frame fact.
+/// Serialises flat (`frame_id`, `path`, `sha256`, `size_bytes`, then the [`FrameMeta`]
+/// fields), which is how the daemon's API shows a frame.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[cfg_attr(feature = "utoipa", derive(utoipa::ToSchema))]
 pub struct StoredFrame {
+    /// Row id (`frames.id`); stable while the run exists.
+    #[serde(rename = "frame_id")]
+    pub id: i64,
     /// Path relative to the run directory (`frames/…`).
     pub path: String,
     /// Hex SHA-256 of the file.
@@ -183,12 +190,17 @@ pub struct StoredFrame {
     /// File size in bytes.
     pub size_bytes: u64,
     /// Every per-frame fact.
+    #[serde(flatten)]
     pub meta: FrameMeta,
 }
 
 /// A ground-truth row of the index: one image written beside a frame.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct StoredGroundTruth {
+    /// Row id of the frame it belongs to.
+    pub frame_id: i64,
+    /// Plan step of that frame.
+    pub step: usize,
     /// Path of the frame it belongs to (`frames/…`).
     pub frame_path: String,
     /// Plane kind (`depth`, `normal`, `radiance`, `material`).
@@ -275,7 +287,7 @@ impl Index {
     }
 
     /// Creates a new index with the run row (status running) and one pending row per step.
-    pub(crate) fn create(path: &Path, manifest: &Manifest, plan: &Plan) -> Result<Index> {
+    pub(crate) fn create<P: RunPlan>(path: &Path, manifest: &Manifest, plan: &P) -> Result<Index> {
         let mut index = Index::connect(path, true)?;
         let manifest_json =
             serde_json::to_string(manifest).map_err(index.json_err("runs.manifest"))?;
@@ -306,15 +318,15 @@ impl Index {
                      VALUES (?1, ?2, ?3, ?4, ?5)",
                 )
                 .map_err(sqlite("prepare step insert"))?;
-            for (i, step) in plan.steps.iter().enumerate() {
+            for (i, step) in (0..plan.step_count()).filter_map(|i| Some((i, plan.step(i)?))) {
                 // The journal is keyed by position in the plan, which is what resume iterates.
                 insert
                     .execute(params![
                         to_i64(i),
-                        step.action.kind(),
+                        step.kind,
                         step.block,
-                        step.at.line,
-                        step.at.col
+                        step.line,
+                        step.col
                     ])
                     .map_err(sqlite("insert step rows"))?;
             }
@@ -366,30 +378,23 @@ impl Index {
             })
     }
 
+    /// The reader's view of this index (the writer's connection sees its own commits).
+    fn read(&self) -> crate::query::Ctx<'_> {
+        crate::query::Ctx {
+            conn: &self.conn,
+            path: &self.path,
+            version: SCHEMA_VERSION,
+        }
+    }
+
     /// Indices of the steps marked done.
     pub(crate) fn done_steps(&self) -> Result<std::collections::BTreeSet<usize>> {
-        let mut stmt = self
-            .conn
-            .prepare_cached("SELECT idx FROM steps WHERE status = 'done' ORDER BY idx")
-            .map_err(self.err("query done steps"))?;
-        let rows = stmt
-            .query_map([], |row| get_usize(row, 0))
-            .map_err(self.err("query done steps"))?;
-        rows.collect::<rusqlite::Result<_>>()
-            .map_err(self.err("read done steps"))
+        self.read().done_steps()
     }
 
     /// Latest rig time reached by a committed step (0 if none).
     pub(crate) fn last_rig_time_s(&self) -> Result<f64> {
-        let t: Option<f64> = self
-            .conn
-            .query_row(
-                "SELECT MAX(rig_time_end_s) FROM steps WHERE status = 'done'",
-                [],
-                |row| row.get(0),
-            )
-            .map_err(self.err("query last rig time"))?;
-        Ok(t.unwrap_or(0.0))
+        Ok(self.read().journal()?.rig_time_s.unwrap_or(0.0))
     }
 
     /// Sets the run status and message.
@@ -405,17 +410,8 @@ impl Index {
 
     /// The run status and message.
     pub(crate) fn status(&self) -> Result<(RunStatus, Option<String>)> {
-        let (text, message): (String, Option<String>) = self
-            .conn
-            .query_row("SELECT status, message FROM runs", [], |row| {
-                Ok((row.get(0)?, row.get(1)?))
-            })
-            .map_err(self.err("read run status"))?;
-        let status = RunStatus::parse(&text).ok_or_else(|| StorageError::CorruptIndex {
-            path: self.path.clone(),
-            reason: format!("unknown run status {text:?}"),
-        })?;
-        Ok((status, message))
+        let run = self.read().run()?;
+        Ok((run.status, run.message))
     }
 
     /// Commits several steps in ONE transaction (one fsync): for each, replaces its frame rows
@@ -618,123 +614,12 @@ impl Index {
 
     /// Frame rows, of one step or all, ordered by step and path.
     pub(crate) fn frames(&self, step: Option<usize>) -> Result<Vec<StoredFrame>> {
-        let mut stmt = self
-            .conn
-            .prepare_cached(
-                "SELECT path, sha256, size_bytes, step, block, label, camera, kind, exposure_index,
-                    exposure_s, exposures_s, gain, trigger_id, axes_deg, lamps_on, laser_armed,
-                    laser_on, laser_colour_nm, laser_tilt_deg, laser_mount_deg, fixture, cart_mm,
-                    rig_time_s, wall_time_unix_s, width, height, bit_depth, saturated_samples, notes,
-                    sample_shift
-                 FROM frames WHERE ?1 IS NULL OR step = ?1 ORDER BY step, path",
-            )
-            .map_err(self.err("query frames"))?;
-        type Raw = (StoredFrame, String, String, String, String, String);
-        let rows = stmt
-            .query_map([step.map(to_i64)], |r| -> rusqlite::Result<Raw> {
-                let meta = FrameMeta {
-                    step: get_usize(r, 3)?,
-                    block: r.get(4)?,
-                    label: r.get(5)?,
-                    camera: r.get(6)?,
-                    kind: FrameKind::Raw,
-                    exposure_index: r
-                        .get::<_, Option<i64>>(8)?
-                        .map(|v| to_usize(8, v))
-                        .transpose()?,
-                    exposure_s: r.get(9)?,
-                    exposures_s: Vec::new(),
-                    gain: r.get(11)?,
-                    trigger_id: r
-                        .get::<_, Option<i64>>(12)?
-                        .map(|v| to_u64(12, v))
-                        .transpose()?,
-                    axes_deg: Default::default(),
-                    lamps_on: Vec::new(),
-                    laser_armed: r.get(15)?,
-                    laser_on: r.get(16)?,
-                    laser_colour_nm: r.get(17)?,
-                    laser_tilt_deg: r.get(18)?,
-                    laser_mount_deg: r.get(19)?,
-                    fixture: r.get(20)?,
-                    cart_mm: r.get(21)?,
-                    rig_time_s: r.get(22)?,
-                    wall_time_unix_s: r.get(23)?,
-                    width: r.get(24)?,
-                    height: r.get(25)?,
-                    bit_depth: r.get(26)?,
-                    sample_shift: r.get(29)?,
-                    saturated_samples: to_u64(27, r.get(27)?)?,
-                    notes: serde_json::Value::Null,
-                };
-                let frame = StoredFrame {
-                    path: r.get(0)?,
-                    sha256: r.get(1)?,
-                    size_bytes: to_u64(2, r.get(2)?)?,
-                    meta,
-                };
-                Ok((
-                    frame,
-                    r.get(7)?,
-                    r.get(10)?,
-                    r.get(13)?,
-                    r.get(14)?,
-                    r.get(28)?,
-                ))
-            })
-            .map_err(self.err("query frames"))?;
-        let mut out = Vec::new();
-        for row in rows {
-            let (mut frame, kind, exposures, axes, lamps, notes) =
-                row.map_err(self.err("read frame row"))?;
-            frame.meta.kind =
-                FrameKind::parse(&kind).ok_or_else(|| StorageError::CorruptIndex {
-                    path: self.path.clone(),
-                    reason: format!("frame {} has unknown kind {kind:?}", frame.path),
-                })?;
-            let decode = self.json_err("frames");
-            frame.meta.exposures_s = serde_json::from_str(&exposures).map_err(&decode)?;
-            frame.meta.axes_deg = serde_json::from_str(&axes).map_err(&decode)?;
-            frame.meta.lamps_on = serde_json::from_str(&lamps).map_err(&decode)?;
-            frame.meta.notes = serde_json::from_str(&notes).map_err(&decode)?;
-            out.push(frame);
-        }
-        Ok(out)
+        self.read().frames_by_path(step)
     }
 
     /// Ground-truth rows, of one step or all, ordered by path.
     pub(crate) fn ground_truth(&self, step: Option<usize>) -> Result<Vec<StoredGroundTruth>> {
-        let mut stmt = self
-            .conn
-            .prepare_cached(
-                "SELECT frames.path, g.kind, g.path, g.sha256, g.size_bytes, g.channels
-                 FROM ground_truth AS g JOIN frames ON frames.id = g.frame_id
-                 WHERE ?1 IS NULL OR g.step = ?1 ORDER BY g.path",
-            )
-            .map_err(self.err("query ground truth"))?;
-        let rows = stmt
-            .query_map([step.map(to_i64)], |r| {
-                Ok((
-                    StoredGroundTruth {
-                        frame_path: r.get(0)?,
-                        kind: r.get(1)?,
-                        path: r.get(2)?,
-                        sha256: r.get(3)?,
-                        size_bytes: to_u64(4, r.get(4)?)?,
-                        channels: Vec::new(),
-                    },
-                    r.get::<_, String>(5)?,
-                ))
-            })
-            .map_err(self.err("query ground truth"))?;
-        let mut out = Vec::new();
-        for row in rows {
-            let (mut truth, channels) = row.map_err(self.err("read ground truth row"))?;
-            truth.channels =
-                serde_json::from_str(&channels).map_err(self.json_err("ground_truth"))?;
-            out.push(truth);
-        }
-        Ok(out)
+        self.read().ground_truth(step)
     }
 
     /// The underlying connection, for ad-hoc queries in tests.
@@ -759,11 +644,11 @@ fn delete_step_rows(tx: &Transaction<'_>, step: i64) -> rusqlite::Result<()> {
 /// step). When there is no `-wal` (no writer since the last clean close) the file is opened
 /// `immutable`, because a read-only WAL reader would otherwise leave `-shm`/`-wal` files
 /// behind in the run directory.
-pub fn open_read_only(run_dir: &Path) -> rusqlite::Result<Connection> {
-    let path = run_dir.join(super::layout::INDEX);
+pub(crate) fn open_read_only(run_dir: &Path) -> rusqlite::Result<Connection> {
+    let path = run_dir.join(crate::layout::INDEX);
     let flags = OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX;
     let quiescent = !run_dir
-        .join(format!("{}-wal", super::layout::INDEX))
+        .join(format!("{}-wal", crate::layout::INDEX))
         .exists();
     let conn = if quiescent {
         Connection::open_with_flags(
@@ -793,12 +678,12 @@ fn uri_path(path: &Path) -> String {
 }
 
 /// Converts a count or index to SQLite's integer (saturating: no plan or image gets near 2⁶³).
-fn to_i64(v: usize) -> i64 {
+pub(crate) fn to_i64(v: usize) -> i64 {
     i64::try_from(v).unwrap_or(i64::MAX)
 }
 
 /// Maps a rusqlite error to a [`StorageError::Sqlite`] naming the database and the operation.
-fn sql_err<'a>(
+pub(crate) fn sql_err<'a>(
     path: &'a Path,
     what: &'static str,
 ) -> impl Fn(rusqlite::Error) -> StorageError + 'a {
@@ -810,16 +695,16 @@ fn sql_err<'a>(
 }
 
 /// A non-negative integer column as `u64`.
-fn to_u64(column: usize, v: i64) -> rusqlite::Result<u64> {
+pub(crate) fn to_u64(column: usize, v: i64) -> rusqlite::Result<u64> {
     u64::try_from(v).map_err(|_| rusqlite::Error::IntegralValueOutOfRange(column, v))
 }
 
 /// A non-negative integer column as `usize`.
-fn to_usize(column: usize, v: i64) -> rusqlite::Result<usize> {
+pub(crate) fn to_usize(column: usize, v: i64) -> rusqlite::Result<usize> {
     usize::try_from(v).map_err(|_| rusqlite::Error::IntegralValueOutOfRange(column, v))
 }
 
 /// Reads a non-negative integer column as `usize`.
-fn get_usize(row: &rusqlite::Row<'_>, column: usize) -> rusqlite::Result<usize> {
+pub(crate) fn get_usize(row: &rusqlite::Row<'_>, column: usize) -> rusqlite::Result<usize> {
     to_usize(column, row.get(column)?)
 }

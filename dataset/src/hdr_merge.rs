@@ -21,7 +21,7 @@
 use rayon::prelude::*;
 use stagehand_devices::Frame;
 
-use super::error::{Result, StorageError};
+use crate::error::{Result, StorageError};
 
 /// A merged HDR image.
 #[derive(Debug, Clone, PartialEq)]
