@@ -82,8 +82,7 @@ pub enum Action {
 }
 
 impl Action {
-    /// Short name of the action kind, as in the JSON `kind` field.
-    /// Every name [`Action::kind`] returns.
+    /// Every name [`Action::kind`] returns (the JSON `kind` field), for reading events back.
     pub const KINDS: [&'static str; 10] = [
         "home",
         "move",
@@ -184,5 +183,52 @@ impl Plan {
                 _ => 0,
             })
             .sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `kind()`, the serde tag and [`Action::KINDS`] name every action alike.
+    #[test]
+    fn every_kind_is_listed_and_is_the_serde_tag() {
+        let actions = [
+            Action::Home { axes: vec![] },
+            Action::Move {
+                targets: BTreeMap::new(),
+            },
+            Action::Lamps {
+                states: BTreeMap::new(),
+            },
+            Action::LaserArm,
+            Action::LaserDisarm,
+            Action::Laser {
+                on: true,
+                colour_nm: 650,
+            },
+            Action::Capture {
+                exposures_s: vec![0.01],
+                cameras: vec![],
+                gain: 1.0,
+                hdr: false,
+                label: String::new(),
+                min_interval_s: 0.0,
+            },
+            Action::CartTo { position_mm: 0.0 },
+            Action::Prompt {
+                message: String::new(),
+                fixture: None,
+                laser_mount_deg: None,
+                laser_fit_nm: None,
+            },
+            Action::Wait { seconds: 0.0 },
+        ];
+        assert_eq!(actions.len(), Action::KINDS.len());
+        for (a, listed) in actions.iter().zip(Action::KINDS) {
+            assert_eq!(a.kind(), listed);
+            let json = serde_json::to_value(a).expect("serialises");
+            assert_eq!(json["kind"], a.kind());
+        }
     }
 }

@@ -169,6 +169,16 @@ async fn scenario(rig: &mut Rig, unplug: Option<&mut dyn FnMut(bool)>) {
 
 fn on_real(build: Build) {
     let _one_at_a_time = grbl_peer::exclusive();
+    // grbl-sim simulates the AVR in real time and now and then loses motion under load (a move
+    // that never ends): a failure counts only if a fresh board shows it again.
+    if std::panic::catch_unwind(|| on_real_board(build)).is_err() {
+        eprintln!("retrying the scenario once on a fresh board");
+        on_real_board(build);
+    }
+}
+
+/// The scenario on one freshly powered board.
+fn on_real_board(build: Build) {
     let Some(mut board) = Board::start(build, "") else {
         return;
     };
