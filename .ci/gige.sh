@@ -27,8 +27,9 @@ if [ -n "$missing" ]; then
 fi
 
 echo "== cargo test --no-run, cargo build (outside the namespace: they may need crates.io)"
-cargo test -p stagehand-devices --features cam-aravis --test aravis_gige --no-run
-cargo build -p stagehand --features cam-aravis
+cargo test -p stagehand-devices --features cam-v4l,cam-aravis,cam-gphoto2 --test aravis_gige --no-run
+# Every camera backend, so the root crate's feature-gated wiring is compiled too (one devices build).
+cargo build -p stagehand --features cam-v4l,cam-aravis,cam-gphoto2
 
 # aravis's discovery broadcasts on every interface that is up, so the cameras and the tests run
 # in a private network namespace with only loopback: nothing leaves the machine.
@@ -38,7 +39,7 @@ $sudo_ unshare --net -- env STAGEHAND_REQUIRE_PEERS=1 bash -euo pipefail -c '
     for n in 2 3 4 5 6 7 8 9; do
         ip -4 -o addr show dev lo | grep -q "inet 127.0.0.$n/" || ip addr add "127.0.0.$n/8" dev lo
     done
-    cargo test --offline -p stagehand-devices --features cam-aravis --test aravis_gige -- "$@"
+    cargo test --offline -p stagehand-devices --features cam-v4l,cam-aravis,cam-gphoto2 --test aravis_gige -- "$@"
 ' gige "$@"
 
 # The whole quickstart with the 8 GigE cameras real (through aravis) and the serial devices

@@ -539,7 +539,8 @@ async function main() {
 
   await stage('the interlock opened mid-sweep pauses the run; resumed, no dark laser frame is kept', async () => {
     await page.selectOption('#script-select', 'quickstart');
-    await page.fill('#script-set', 'lamp_count=1');
+    // One tour position and one lamp: the shortest quickstart that still sweeps the laser.
+    await page.fill('#script-set', 'lamp_count=1 turntable_deg=[0.0] light_arc_deg=[30.0]');
     await page.locator('#dryrun .dryrun-head').waitFor();
     await page.click('#run-start');
     await page.locator('#prompt-banner').waitFor({ state: 'visible' });
