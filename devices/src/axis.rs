@@ -10,7 +10,7 @@ use serde::Serialize;
 use tokio::sync::{mpsc, oneshot, watch};
 
 use crate::clock::duration_s;
-use crate::error::{DeviceError, DeviceResult};
+use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::motion::{Trapezoid, move_duration_s};
 use crate::request::call;
 use crate::rig::AxisSpec;
@@ -122,18 +122,18 @@ impl AxisHandle {
     pub async fn move_to(&self, target_deg: f64) -> DeviceResult<f64> {
         let s = &self.spec;
         if !target_deg.is_finite() || target_deg < s.min_deg || target_deg > s.max_deg {
-            return Err(DeviceError::OutsideSoftLimits {
-                device: s.id.clone(),
-                target_deg,
-                min_deg: s.min_deg,
-                max_deg: s.max_deg,
-            });
+            return Err(DeviceError::new(
+                s.id.clone(),
+                DeviceErrorKind::OutsideSoftLimits {
+                    target_deg,
+                    min_deg: s.min_deg,
+                    max_deg: s.max_deg,
+                },
+            ));
         }
         let status = self.status();
         if !status.homed {
-            return Err(DeviceError::NotHomed {
-                device: s.id.clone(),
-            });
+            return Err(DeviceError::new(s.id.clone(), DeviceErrorKind::NotHomed));
         }
         let timeout = move_duration_s(
             status.position_deg,
@@ -214,7 +214,7 @@ async fn run_actor<D: AxisDriver>(
                                 let r = driver.stop().await;
                                 let _ = stop_reply.send(r.clone());
                                 publish(&status, &r, Some(false), false);
-                                r.and(Err(DeviceError::Other { device: spec.id.clone(), message: "homing interrupted by stop; home the axis again".into() }))
+                                r.and(Err(DeviceError::new(spec.id.clone(), DeviceErrorKind::Other { message: "homing interrupted by stop; home the axis again".into() })))
                             }
                         };
                         let homed = r.is_ok();
@@ -230,11 +230,11 @@ async fn run_actor<D: AxisDriver>(
                                 let _ = stop_reply.send(r.clone());
                                 // Where it stopped (the error below carries no position).
                                 publish(&status, &r, unhome.then_some(false), false);
-                                r.and(Err(DeviceError::Other { device: spec.id.clone(), message: "move interrupted by stop".into() }))
+                                r.and(Err(DeviceError::new(spec.id.clone(), DeviceErrorKind::Other { message: "move interrupted by stop".into() })))
                             }
                         };
                         let homed = match &r {
-                            Err(DeviceError::HardLimit { .. } | DeviceError::NotHomed { .. } | DeviceError::Alarm { .. }) => Some(false),
+                            Err(DeviceError { kind: DeviceErrorKind::HardLimit { .. }, .. } | DeviceError { kind: DeviceErrorKind::NotHomed, .. } | DeviceError { kind: DeviceErrorKind::Alarm { .. }, .. }) => Some(false),
                             _ => None,
                         };
                         publish(&status, &r, homed, false);
@@ -369,7 +369,10 @@ mod tests {
         assert!(!s.homed, "it may have lost steps: it must be homed again");
         assert!(matches!(
             axis.move_to(10.0).await,
-            Err(DeviceError::NotHomed { .. })
+            Err(DeviceError {
+                kind: DeviceErrorKind::NotHomed,
+                ..
+            })
         ));
         // An e-stop of an axis standing still forgets the home too.
         axis.home().await.unwrap();

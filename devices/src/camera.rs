@@ -7,7 +7,7 @@ use tokio::sync::{mpsc, oneshot};
 
 use crate::clock::duration_s;
 use crate::compute_time::ComputeTime;
-use crate::error::{DeviceError, DeviceResult};
+use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::frame::Frame;
 use crate::request::call;
 use crate::rig::CameraSpec;
@@ -96,19 +96,23 @@ impl CameraHandle {
             && exposure_s >= s.min_exposure_s
             && exposure_s <= s.max_exposure_s)
         {
-            return Err(DeviceError::Exposure {
-                device: s.id.clone(),
-                exposure_s,
-                min_s: s.min_exposure_s,
-                max_s: s.max_exposure_s,
-            });
+            return Err(DeviceError::new(
+                s.id.clone(),
+                DeviceErrorKind::Exposure {
+                    exposure_s,
+                    min_s: s.min_exposure_s,
+                    max_s: s.max_exposure_s,
+                },
+            ));
         }
         if !(gain.is_finite() && (1.0..=s.max_gain).contains(&gain)) {
-            return Err(DeviceError::Gain {
-                device: s.id.clone(),
-                gain,
-                max: s.max_gain,
-            });
+            return Err(DeviceError::new(
+                s.id.clone(),
+                DeviceErrorKind::Gain {
+                    gain,
+                    max: s.max_gain,
+                },
+            ));
         }
         call(&s.id, &self.tx, "configure", MARGIN_S, |tx| {
             Cmd::Configure(exposure_s, gain, tx)
@@ -142,7 +146,7 @@ impl CameraHandle {
         let wait_s = exposure_s + self.spec.readout_s() + MARGIN_S;
         let timeout_s = wait_s + MARGIN_S;
         let id = &self.spec.id;
-        let gone = || DeviceError::Gone { device: id.clone() };
+        let gone = || DeviceError::new(id.clone(), DeviceErrorKind::Gone);
         let (reply, rx) = oneshot::channel();
         self.tx
             .send(Cmd::FrameFor(trigger_id, wait_s, reply))
@@ -151,23 +155,33 @@ impl CameraHandle {
         let r = match self.compute.timeout(duration_s(timeout_s), rx).await {
             Some(Ok(r)) => r,
             Some(Err(_)) => Err(gone()),
-            None => Err(DeviceError::Timeout {
-                device: id.clone(),
-                request: "frame".into(),
-                timeout_s,
-            }),
+            None => Err(DeviceError::new(
+                id.clone(),
+                DeviceErrorKind::Timeout {
+                    request: "frame".into(),
+                    timeout_s,
+                },
+            )),
         };
         match r {
             Err(
-                DeviceError::Timeout { timeout_s, .. }
-                | DeviceError::MissingFrame { timeout_s, .. },
-            ) if self.simulated => Err(DeviceError::SimulatedFault {
-                device: id.clone(),
-                request: "frame".into(),
-                message: format!(
-                    "no frame for trigger {trigger_id} within {timeout_s:.3} s of rig time (rendering not counted)"
-                ),
-            }),
+                DeviceError {
+                    kind: DeviceErrorKind::Timeout { timeout_s, .. },
+                    ..
+                }
+                | DeviceError {
+                    kind: DeviceErrorKind::MissingFrame { timeout_s, .. },
+                    ..
+                },
+            ) if self.simulated => Err(DeviceError::new(
+                id.clone(),
+                DeviceErrorKind::SimulatedFault {
+                    request: "frame".into(),
+                    message: format!(
+                        "no frame for trigger {trigger_id} within {timeout_s:.3} s of rig time (rendering not counted)"
+                    ),
+                },
+            )),
             other => other,
         }
     }
@@ -198,19 +212,21 @@ async fn run_actor<D: CameraDriver>(
                     .timeout(duration_s(wait_s), driver.next_frame())
                     .await
                 {
-                    None => Err(DeviceError::MissingFrame {
-                        device: spec.id.clone(),
-                        trigger_id: id,
-                        timeout_s: wait_s,
-                    }),
+                    None => Err(DeviceError::new(
+                        spec.id.clone(),
+                        DeviceErrorKind::MissingFrame {
+                            trigger_id: id,
+                            timeout_s: wait_s,
+                        },
+                    )),
                     Some(Err(e)) => Err(e),
-                    Some(Ok(frame)) if frame.trigger_id != id => {
-                        Err(DeviceError::UnexpectedFrame {
-                            device: spec.id.clone(),
+                    Some(Ok(frame)) if frame.trigger_id != id => Err(DeviceError::new(
+                        spec.id.clone(),
+                        DeviceErrorKind::UnexpectedFrame {
                             expected: id,
                             got: frame.trigger_id,
-                        })
-                    }
+                        },
+                    )),
                     Some(Ok(frame)) => Ok(frame),
                 };
                 let _ = reply.send(r);

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use tokio::sync::{mpsc, oneshot, watch};
 
 use crate::clock::duration_s;
-use crate::error::{DeviceError, DeviceResult};
+use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::request::call;
 use crate::rig::CartSpec;
 
@@ -85,16 +85,16 @@ impl CartHandle {
     pub async fn move_to(&self, target_mm: f64) -> DeviceResult<f64> {
         let s = &self.spec;
         if !target_mm.is_finite() || target_mm < 0.0 {
-            return Err(DeviceError::EndStop {
-                device: s.id.clone(),
-                end: "- end",
-            });
+            return Err(DeviceError::new(
+                s.id.clone(),
+                DeviceErrorKind::EndStop { end: "- end" },
+            ));
         }
         if target_mm > s.travel_mm {
-            return Err(DeviceError::EndStop {
-                device: s.id.clone(),
-                end: "+ end",
-            });
+            return Err(DeviceError::new(
+                s.id.clone(),
+                DeviceErrorKind::EndStop { end: "+ end" },
+            ));
         }
         let timeout_s = (target_mm - self.position_mm()).abs() / s.speed_mm_s * 1.5 + 2.0;
         call(&s.id, &self.tx, "move", timeout_s, |tx| (target_mm, tx)).await

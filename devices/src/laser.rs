@@ -10,7 +10,7 @@ use std::sync::Arc;
 use serde::Serialize;
 use tokio::sync::{mpsc, oneshot, watch};
 
-use crate::error::{DeviceError, DeviceResult};
+use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::request::call;
 use crate::rig::LaserSpec;
 
@@ -185,19 +185,23 @@ async fn run_actor<D: LaserDriver>(
             }
             Cmd::Emit(on, colour, reply) => {
                 let r = if on && !current.armed {
-                    Err(DeviceError::LaserNotArmed {
-                        device: spec.id.clone(),
-                    })
+                    Err(DeviceError::new(
+                        spec.id.clone(),
+                        DeviceErrorKind::LaserNotArmed,
+                    ))
                 } else if on && !*interlock.borrow() {
-                    Err(DeviceError::InterlockOpen {
-                        device: spec.id.clone(),
-                    })
+                    Err(DeviceError::new(
+                        spec.id.clone(),
+                        DeviceErrorKind::InterlockOpen,
+                    ))
                 } else if on && colour != current.fitted_nm {
-                    Err(DeviceError::LaserColour {
-                        device: spec.id.clone(),
-                        colour_nm: colour,
-                        fitted: vec![current.fitted_nm],
-                    })
+                    Err(DeviceError::new(
+                        spec.id.clone(),
+                        DeviceErrorKind::LaserColour {
+                            colour_nm: colour,
+                            fitted: vec![current.fitted_nm],
+                        },
+                    ))
                 } else {
                     driver.set_emission(on, current.fitted_nm).await
                 };
@@ -208,16 +212,20 @@ async fn run_actor<D: LaserDriver>(
             }
             Cmd::Fit(colour, mount, reply) => {
                 let r = if !spec.colours_nm.contains(&colour) {
-                    Err(DeviceError::LaserColour {
-                        device: spec.id.clone(),
-                        colour_nm: colour,
-                        fitted: spec.colours_nm.clone(),
-                    })
+                    Err(DeviceError::new(
+                        spec.id.clone(),
+                        DeviceErrorKind::LaserColour {
+                            colour_nm: colour,
+                            fitted: spec.colours_nm.clone(),
+                        },
+                    ))
                 } else if current.on {
-                    Err(DeviceError::Other {
-                        device: spec.id.clone(),
-                        message: "switch the laser off before swapping or remounting it".into(),
-                    })
+                    Err(DeviceError::new(
+                        spec.id.clone(),
+                        DeviceErrorKind::Other {
+                            message: "switch the laser off before swapping or remounting it".into(),
+                        },
+                    ))
                 } else {
                     driver.fitted(colour, mount).await
                 };
@@ -306,7 +314,9 @@ mod tests {
         door.set_closed(false).unwrap();
         settle().await;
         let e = laser.on(650).await.unwrap_err();
-        assert!(matches!(e, DeviceError::InterlockOpen { ref device } if device == "laser"));
+        assert!(
+            matches!(e, DeviceError { ref device, kind: DeviceErrorKind::InterlockOpen } if device == "laser")
+        );
         assert!(e.to_string().contains("interlock"), "{e}");
         assert!(!*emitting.lock().unwrap());
         assert!(!laser.status().interlock_closed);

@@ -30,5 +30,5 @@ pub mod switch_bank;
 pub mod switched;
 pub mod trigger;
 
-pub use error::{DeviceError, DeviceResult};
+pub use error::{DeviceError, DeviceErrorKind, DeviceResult};
 pub use frame::Frame;

@@ -8,7 +8,7 @@
 use serial2_tokio::SerialPort;
 
 use crate::clock::duration_s;
-use crate::error::{DeviceError, DeviceResult};
+use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 
 /// Longest line a device may send before the bytes are taken for garbage.
 const MAX_LINE: usize = 1024;
@@ -50,12 +50,15 @@ impl SerialLink {
     /// Opens the port (raw, 8N1 at the link's baud rate) and discards anything stale in it.
     pub fn open(&mut self) -> DeviceResult<()> {
         self.close();
-        let port =
-            SerialPort::open(&self.path, self.baud).map_err(|e| DeviceError::PortUnavailable {
-                device: self.device.clone(),
-                port: self.path.clone(),
-                reason: e.to_string(),
-            })?;
+        let port = SerialPort::open(&self.path, self.baud).map_err(|e| {
+            DeviceError::new(
+                self.device.clone(),
+                DeviceErrorKind::PortUnavailable {
+                    port: self.path.clone(),
+                    reason: e.to_string(),
+                },
+            )
+        })?;
         // A pty or a USB CDC port may hold bytes from before; they belong to nobody.
         let _ = port.discard_buffers();
         self.port = Some(port);
@@ -71,30 +74,36 @@ impl SerialLink {
     /// A `Disconnected` error for `reason`, closing the link.
     pub fn lost(&mut self, reason: impl Into<String>) -> DeviceError {
         self.close();
-        DeviceError::Disconnected {
-            device: self.device.clone(),
-            port: self.path.clone(),
-            reason: reason.into(),
-        }
+        DeviceError::new(
+            self.device.clone(),
+            DeviceErrorKind::Disconnected {
+                port: self.path.clone(),
+                reason: reason.into(),
+            },
+        )
     }
 
     /// A `Protocol` error about `message`. The link stays open: the caller decides whether
     /// to resynchronise or close.
     pub fn protocol(&self, message: impl Into<String>) -> DeviceError {
-        DeviceError::Protocol {
-            device: self.device.clone(),
-            port: self.path.clone(),
-            message: message.into(),
-        }
+        DeviceError::new(
+            self.device.clone(),
+            DeviceErrorKind::Protocol {
+                port: self.path.clone(),
+                message: message.into(),
+            },
+        )
     }
 
     fn port(&mut self) -> DeviceResult<&SerialPort> {
         if self.port.is_none() {
-            return Err(DeviceError::Disconnected {
-                device: self.device.clone(),
-                port: self.path.clone(),
-                reason: "the port is not open".into(),
-            });
+            return Err(DeviceError::new(
+                self.device.clone(),
+                DeviceErrorKind::Disconnected {
+                    port: self.path.clone(),
+                    reason: "the port is not open".into(),
+                },
+            ));
         }
         Ok(self.port.as_ref().expect("checked above"))
     }
@@ -176,7 +185,11 @@ impl SerialLink {
     pub async fn read_available(&mut self, timeout_s: f64) -> DeviceResult<()> {
         let deadline = tokio::time::Instant::now() + duration_s(timeout_s);
         match self.fill(deadline, "drain", timeout_s).await {
-            Ok(()) | Err(DeviceError::Timeout { .. }) => Ok(()),
+            Ok(())
+            | Err(DeviceError {
+                kind: DeviceErrorKind::Timeout { .. },
+                ..
+            }) => Ok(()),
             Err(e) => Err(e),
         }
     }
@@ -201,11 +214,13 @@ impl SerialLink {
                 Ok(())
             }
             Ok(Err(e)) => Err(self.lost(format!("read failed: {e}"))),
-            Err(_) => Err(DeviceError::Timeout {
-                device: self.device.clone(),
-                request: request.to_string(),
-                timeout_s,
-            }),
+            Err(_) => Err(DeviceError::new(
+                self.device.clone(),
+                DeviceErrorKind::Timeout {
+                    request: request.to_string(),
+                    timeout_s,
+                },
+            )),
         }
     }
 }
@@ -244,14 +259,32 @@ mod tests {
         );
         assert_eq!(link.read_line(b"\r\n", "x", 1.0).await.unwrap(), "ok");
         let e = link.read_line(b"\n", "status", 0.05).await.unwrap_err();
-        assert!(matches!(e, DeviceError::Timeout { .. }), "{e}");
+        assert!(
+            matches!(
+                e,
+                DeviceError {
+                    kind: DeviceErrorKind::Timeout { .. },
+                    ..
+                }
+            ),
+            "{e}"
+        );
         link.write(b"?", 1.0).await.unwrap();
         let mut b = [0u8; 1];
         master.read_exact(&mut b).unwrap();
         assert_eq!(&b, b"?");
         master.write_all(&[b'x'; 2000]).unwrap();
         let e = link.read_line(b"\n", "status", 1.0).await.unwrap_err();
-        assert!(matches!(e, DeviceError::Protocol { .. }), "{e}");
+        assert!(
+            matches!(
+                e,
+                DeviceError {
+                    kind: DeviceErrorKind::Protocol { .. },
+                    ..
+                }
+            ),
+            "{e}"
+        );
         drop(master);
         drop(slave);
         let e = loop {
@@ -262,7 +295,13 @@ mod tests {
         assert!(
             matches!(
                 e,
-                DeviceError::Disconnected { .. } | DeviceError::Protocol { .. }
+                DeviceError {
+                    kind: DeviceErrorKind::Disconnected { .. },
+                    ..
+                } | DeviceError {
+                    kind: DeviceErrorKind::Protocol { .. },
+                    ..
+                }
             ),
             "{e}"
         );
@@ -277,6 +316,12 @@ mod tests {
             text.contains("lamps") && text.contains("/dev/serial/by-id/nope"),
             "{text}"
         );
-        assert!(matches!(e, DeviceError::PortUnavailable { .. }));
+        assert!(matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::PortUnavailable { .. },
+                ..
+            }
+        ));
     }
 }

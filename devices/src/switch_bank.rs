@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use tokio::sync::{mpsc, oneshot, watch};
 
-use crate::error::{DeviceError, DeviceResult};
+use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::request::call;
 use crate::rig::SwitchBankSpec;
 
@@ -59,11 +59,13 @@ impl SwitchBankHandle {
     pub async fn set_many(&self, changes: &[(u32, bool)]) -> DeviceResult<()> {
         for &(ch, _) in changes {
             if ch == 0 || ch > self.spec.channels {
-                return Err(DeviceError::NoSuchChannel {
-                    device: self.spec.id.clone(),
-                    channel: ch,
-                    channels: self.spec.channels,
-                });
+                return Err(DeviceError::new(
+                    self.spec.id.clone(),
+                    DeviceErrorKind::NoSuchChannel {
+                        channel: ch,
+                        channels: self.spec.channels,
+                    },
+                ));
             }
         }
         let changes = changes.to_vec();

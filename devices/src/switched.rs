@@ -5,7 +5,7 @@
 use std::sync::Arc;
 
 use crate::clock::duration_s;
-use crate::error::{DeviceError, DeviceResult};
+use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::laser::LaserDriver;
 use crate::relay_serial::NumatoBoard;
 use crate::relay_serial::codec::MAX_INDEX;
@@ -101,18 +101,22 @@ impl GpioTrigger {
         pulse_s: f64,
     ) -> DeviceResult<Self> {
         if line > MAX_INDEX {
-            return Err(DeviceError::Other {
-                device: device.to_string(),
-                message: format!(
-                    "GPIO line {line} does not exist; the board has lines 0 to {MAX_INDEX}"
-                ),
-            });
+            return Err(DeviceError::new(
+                device.to_string(),
+                DeviceErrorKind::Other {
+                    message: format!(
+                        "GPIO line {line} does not exist; the board has lines 0 to {MAX_INDEX}"
+                    ),
+                },
+            ));
         }
         if !pulse_s.is_finite() || !(0.0..=1.0).contains(&pulse_s) {
-            return Err(DeviceError::Other {
-                device: device.to_string(),
-                message: format!("pulse_s = {pulse_s} is outside [0, 1] s"),
-            });
+            return Err(DeviceError::new(
+                device.to_string(),
+                DeviceErrorKind::Other {
+                    message: format!("pulse_s = {pulse_s} is outside [0, 1] s"),
+                },
+            ));
         }
         Ok(Self {
             device: device.to_string(),

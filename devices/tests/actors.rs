@@ -4,13 +4,13 @@
 use std::collections::VecDeque;
 use std::time::Duration;
 
-use stagehand_devices::DeviceError;
 use stagehand_devices::axis::{AxisDriver, AxisHandle};
 use stagehand_devices::camera::{CameraDriver, CameraHandle};
 use stagehand_devices::error::DeviceResult;
 use stagehand_devices::frame::Frame;
 use stagehand_devices::laser::{LaserDriver, LaserHandle};
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, RigSpec, parse_rig};
+use stagehand_devices::{DeviceError, DeviceErrorKind};
 
 fn rig() -> RigSpec {
     parse_rig(BUILTIN_LIGHTSTAGE, "lightstage.toml").unwrap()
@@ -77,7 +77,13 @@ async fn a_stalled_camera_is_a_missing_frame_within_exposure_plus_readout() {
     let started = tokio::time::Instant::now();
     let err = cam.frame_for(3, 0.5).await.unwrap_err();
     assert!(
-        matches!(err, DeviceError::MissingFrame { trigger_id: 3, .. }),
+        matches!(
+            err,
+            DeviceError {
+                kind: DeviceErrorKind::MissingFrame { trigger_id: 3, .. },
+                ..
+            }
+        ),
         "{err}"
     );
     let waited = started.elapsed();
@@ -95,11 +101,13 @@ async fn a_leftover_or_foreign_frame_is_an_error_not_accepted() {
     let err = cam.frame_for(5, 0.01).await.unwrap_err();
     assert_eq!(
         err,
-        DeviceError::UnexpectedFrame {
-            device: "cam1".into(),
-            expected: 5,
-            got: 4
-        }
+        DeviceError::new(
+            "cam1",
+            DeviceErrorKind::UnexpectedFrame {
+                expected: 5,
+                got: 4
+            }
+        )
     );
 }
 
@@ -108,19 +116,31 @@ async fn exposure_and_gain_outside_the_camera_ranges_are_refused() {
     let cam = camera(&[]);
     assert!(matches!(
         cam.configure(-0.01, 1.0).await,
-        Err(DeviceError::Exposure { .. })
+        Err(DeviceError {
+            kind: DeviceErrorKind::Exposure { .. },
+            ..
+        })
     ));
     assert!(matches!(
         cam.configure(f64::NAN, 1.0).await,
-        Err(DeviceError::Exposure { .. })
+        Err(DeviceError {
+            kind: DeviceErrorKind::Exposure { .. },
+            ..
+        })
     ));
     assert!(matches!(
         cam.configure(100.0, 1.0).await,
-        Err(DeviceError::Exposure { .. })
+        Err(DeviceError {
+            kind: DeviceErrorKind::Exposure { .. },
+            ..
+        })
     ));
     assert!(matches!(
         cam.configure(0.01, 0.5).await,
-        Err(DeviceError::Gain { .. })
+        Err(DeviceError {
+            kind: DeviceErrorKind::Gain { .. },
+            ..
+        })
     ));
     cam.configure(0.01, 2.0).await.unwrap();
 }
@@ -150,7 +170,16 @@ async fn a_stalled_move_times_out_after_its_physical_duration_plus_margin() {
     axis.home().await.unwrap();
     let started = tokio::time::Instant::now();
     let err = axis.move_to(90.0).await.unwrap_err();
-    assert!(matches!(err, DeviceError::Timeout { .. }), "{err}");
+    assert!(
+        matches!(
+            err,
+            DeviceError {
+                kind: DeviceErrorKind::Timeout { .. },
+                ..
+            }
+        ),
+        "{err}"
+    );
     let physical =
         stagehand_devices::motion::move_duration_s(0.0, 90.0, spec.kinematics(), spec.backlash_deg);
     let waited = started.elapsed().as_secs_f64();
@@ -168,16 +197,25 @@ async fn soft_limits_and_homing_are_enforced_before_the_driver_is_asked() {
     let axis = AxisHandle::spawn(spec, DeadAxis);
     assert!(matches!(
         axis.move_to(10.0).await,
-        Err(DeviceError::NotHomed { .. })
+        Err(DeviceError {
+            kind: DeviceErrorKind::NotHomed,
+            ..
+        })
     ));
     axis.home().await.unwrap();
     assert!(matches!(
         axis.move_to(1000.0).await,
-        Err(DeviceError::OutsideSoftLimits { .. })
+        Err(DeviceError {
+            kind: DeviceErrorKind::OutsideSoftLimits { .. },
+            ..
+        })
     ));
     assert!(matches!(
         axis.move_to(f64::NAN).await,
-        Err(DeviceError::OutsideSoftLimits { .. })
+        Err(DeviceError {
+            kind: DeviceErrorKind::OutsideSoftLimits { .. },
+            ..
+        })
     ));
 }
 
@@ -204,12 +242,21 @@ async fn the_laser_emits_only_when_armed_and_disarming_switches_it_off() {
     let laser = LaserHandle::spawn(rig().laser.unwrap(), driver);
     assert!(matches!(
         laser.on(650).await,
-        Err(DeviceError::LaserNotArmed { .. })
+        Err(DeviceError {
+            kind: DeviceErrorKind::LaserNotArmed,
+            ..
+        })
     ));
     assert!(!*emitting.lock().unwrap());
     laser.arm().await.unwrap();
     assert!(
-        matches!(laser.on(532).await, Err(DeviceError::LaserColour { .. })),
+        matches!(
+            laser.on(532).await,
+            Err(DeviceError {
+                kind: DeviceErrorKind::LaserColour { .. },
+                ..
+            })
+        ),
         "532 nm is not fitted"
     );
     laser.on(650).await.unwrap();

@@ -30,7 +30,7 @@ use stagehand_devices::cameras::aravis::{AravisCamera, StreamCounters, StreamSta
 use stagehand_devices::cameras::config::TriggerMode;
 use stagehand_devices::discover::discover;
 use stagehand_devices::rig::{CameraSpec, load_rig_file};
-use stagehand_devices::{DeviceError, DeviceResult, Frame};
+use stagehand_devices::{DeviceError, DeviceErrorKind, DeviceResult, Frame};
 
 const TOOL: &str = "arv-fake-gv-camera-0.8";
 const CAMERAS: usize = 8;
@@ -288,7 +288,12 @@ impl Cameras {
             loop {
                 match h.set_armed(false).await {
                     Ok(()) => break,
-                    Err(e @ DeviceError::Timeout { .. }) if Instant::now() < deadline => {
+                    Err(
+                        e @ DeviceError {
+                            kind: DeviceErrorKind::Timeout { .. },
+                            ..
+                        },
+                    ) if Instant::now() < deadline => {
                         eprintln!("disarm {}: {e}; retrying", h.id());
                     }
                     Err(e) => panic!("disarm {}: {e}", h.id()),
@@ -414,8 +419,9 @@ impl Tally {
                     }
                     *self.frames[i].entry(id).or_default() += 1;
                 }
-                Err(DeviceError::MissingFrame {
-                    device, trigger_id, ..
+                Err(DeviceError {
+                    device,
+                    kind: DeviceErrorKind::MissingFrame { trigger_id, .. },
                 }) => {
                     assert_eq!((device.as_str(), trigger_id), (ids[i].as_str(), id));
                     self.missing[i].push(id);
@@ -501,7 +507,10 @@ async fn opens_by_address_serial_and_id_and_reads_settings_back() {
     nowhere.id = "cam9".into();
     nowhere.port = Some("GV99".into());
     match AravisCamera::open(&nowhere, TriggerMode::Software) {
-        Err(DeviceError::PortUnavailable { device, port, .. }) => {
+        Err(DeviceError {
+            device,
+            kind: DeviceErrorKind::PortUnavailable { port, .. },
+        }) => {
             assert_eq!((device.as_str(), port.as_str()), ("cam9", "GV99"));
         }
         Err(e) => panic!("unexpected error {e}"),
@@ -570,8 +579,9 @@ async fn killed_camera_is_a_missing_frame_then_recovers() {
         match (i == victim, r) {
             (
                 true,
-                Err(DeviceError::MissingFrame {
-                    device, trigger_id, ..
+                Err(DeviceError {
+                    device,
+                    kind: DeviceErrorKind::MissingFrame { trigger_id, .. },
                 }),
             ) => {
                 assert_eq!(

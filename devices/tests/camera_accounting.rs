@@ -5,8 +5,8 @@
 use std::collections::{HashMap, VecDeque};
 
 use proptest::prelude::*;
-use stagehand_devices::DeviceError;
 use stagehand_devices::cameras::accounting::{FrameVerdict, TriggerAccounting, frame_timeout_s};
+use stagehand_devices::{DeviceError, DeviceErrorKind};
 
 /// What happens next on the model rig.
 #[derive(Debug, Clone)]
@@ -99,9 +99,13 @@ impl Model {
     fn expire(&mut self, now: f64) {
         for e in self.acc.expire(now) {
             match e {
-                DeviceError::MissingFrame {
-                    trigger_id,
-                    timeout_s,
+                DeviceError {
+                    kind:
+                        DeviceErrorKind::MissingFrame {
+                            trigger_id,
+                            timeout_s,
+                            ..
+                        },
                     ..
                 } => {
                     assert_eq!(timeout_s, TIMEOUT_S);
@@ -276,13 +280,13 @@ proptest! {
                 let r = b.frame_result(seq);
                 match (d.lost.is_empty(), d.verdict, r) {
                     (true, FrameVerdict::Answers(t), Ok(u)) => prop_assert_eq!(t, u),
-                    (false, _, Err(DeviceError::MissingFrame { trigger_id, .. })) => {
+                    (false, _, Err(DeviceError { kind: DeviceErrorKind::MissingFrame { trigger_id, .. }, .. })) => {
                         prop_assert_eq!(Some(&trigger_id), d.lost.first())
                     }
-                    (true, FrameVerdict::Late(t), Err(DeviceError::UnexpectedFrame { got, .. })) => {
+                    (true, FrameVerdict::Late(t), Err(DeviceError { kind: DeviceErrorKind::UnexpectedFrame { got, .. }, .. })) => {
                         prop_assert_eq!(t, got)
                     }
-                    (true, FrameVerdict::Extra, Err(DeviceError::UnexpectedFrame { .. })) => {}
+                    (true, FrameVerdict::Extra, Err(DeviceError { kind: DeviceErrorKind::UnexpectedFrame { .. }, .. })) => {}
                     (l, v, r) => prop_assert!(false, "disagree: lost empty {l}, {v:?}, {r:?}"),
                 }
             }
@@ -306,7 +310,9 @@ fn a_frame_without_trigger_is_unexpected() {
     a.expect(7, 0.0, 1.0);
     assert_eq!(a.frame_result(1), Ok(7));
     let err = a.frame_result(2).unwrap_err();
-    assert!(matches!(err, DeviceError::UnexpectedFrame { ref device, .. } if device == "cam0"));
+    assert!(
+        matches!(err, DeviceError { ref device, kind: DeviceErrorKind::UnexpectedFrame { .. } } if device == "cam0")
+    );
 }
 
 #[test]
@@ -319,7 +325,13 @@ fn a_sequence_jump_is_a_missing_frame() {
     // Sequence 11 was lost: it was trigger 2's frame; 12 answers trigger 3.
     let err = a.frame_result(12).unwrap_err();
     assert!(
-        matches!(err, DeviceError::MissingFrame { trigger_id: 2, .. }),
+        matches!(
+            err,
+            DeviceError {
+                kind: DeviceErrorKind::MissingFrame { trigger_id: 2, .. },
+                ..
+            }
+        ),
         "{err:?}"
     );
     assert_eq!(a.waiting(), 0);
@@ -335,11 +347,13 @@ fn a_trigger_without_frame_times_out_and_its_late_frame_is_rejected() {
     let errs = a.expire(10.0 + timeout);
     assert_eq!(
         errs,
-        vec![DeviceError::MissingFrame {
-            device: "cam0".into(),
-            trigger_id: 5,
-            timeout_s: timeout
-        }]
+        vec![DeviceError::new(
+            "cam0",
+            DeviceErrorKind::MissingFrame {
+                trigger_id: 5,
+                timeout_s: timeout
+            }
+        )]
     );
     assert!(a.expire(100.0).is_empty(), "reported once");
     a.expect(6, 20.0, timeout);
@@ -347,11 +361,13 @@ fn a_trigger_without_frame_times_out_and_its_late_frame_is_rejected() {
     let err = a.frame_result(0).unwrap_err();
     assert_eq!(
         err,
-        DeviceError::UnexpectedFrame {
-            device: "cam0".into(),
-            expected: 6,
-            got: 5
-        }
+        DeviceError::new(
+            "cam0",
+            DeviceErrorKind::UnexpectedFrame {
+                expected: 6,
+                got: 5
+            }
+        )
     );
     assert_eq!(a.frame_result(1), Ok(6));
 }

@@ -7,11 +7,11 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use stagehand_devices::DeviceError;
 use stagehand_devices::axis::{AxisDriver, AxisHandle};
 use stagehand_devices::grbl::{GrblAxis, GrblController, GrblLaser};
 use stagehand_devices::laser::LaserDriver;
 use stagehand_devices::rig::{AxisRole, AxisSpec, Backend, GRBL_BAUD};
+use stagehand_devices::{DeviceError, DeviceErrorKind};
 
 const STEPS: f64 = 3200.0 / 360.0 * 16.0;
 
@@ -489,7 +489,7 @@ async fn homes_moves_and_reports_positions_through_the_axis_handle() {
     let mut x = GrblAxis::new(ctl.clone(), &spec).unwrap();
     let e = x.move_to(10.0).await.unwrap_err();
     assert!(
-        matches!(&e, DeviceError::NotHomed { device } if device == "turntable"),
+        matches!(&e, DeviceError { device, kind: DeviceErrorKind::NotHomed } if device == "turntable"),
         "{e}"
     );
     assert!(!ctl.is_homed('X').await);
@@ -538,7 +538,16 @@ async fn a_wrong_banner_is_the_wrong_firmware() {
     let mut x = GrblAxis::new(controller(&fake), &axis("turntable", "X")).unwrap();
     let e = x.position().await.unwrap_err();
     let text = e.to_string();
-    assert!(matches!(e, DeviceError::Protocol { .. }), "{text}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::Protocol { .. },
+                ..
+            }
+        ),
+        "{text}"
+    );
     assert!(
         text.contains("wrong firmware banner `Grbl 0.9j") && text.contains("expected GRBL 1.1"),
         "{text}"
@@ -558,7 +567,16 @@ async fn wrong_steps_per_degree_say_which_setting_to_change() {
     let mut y = GrblAxis::new(controller(&fake), &axis("arc", "Y")).unwrap();
     let e = y.home().await.unwrap_err();
     let text = e.to_string();
-    assert!(matches!(e, DeviceError::Misconfigured { .. }), "{text}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::Misconfigured { .. },
+                ..
+            }
+        ),
+        "{text}"
+    );
     assert!(text.contains("`$101=142.222`"), "{text}");
     assert!(text.starts_with("arc:"), "{text}");
 }
@@ -572,19 +590,21 @@ async fn an_error_reply_is_rejected_with_its_meaning() {
     let e = laser.set_emission(true, 520).await.unwrap_err();
     assert_eq!(
         e,
-        DeviceError::Rejected {
-            device: "laser".into(),
-            command: "M3 S1000".into(),
-            code: 9,
-            meaning: "G-code lock".into(),
-        }
+        DeviceError::new(
+            "laser",
+            DeviceErrorKind::Rejected {
+                command: "M3 S1000".into(),
+                code: 9,
+                meaning: "G-code lock".into()
+            }
+        )
     );
     let mut x = GrblAxis::new(ctl.clone(), &axis("turntable", "X")).unwrap();
     x.home().await.unwrap();
     fake.script().reject_next = Some(20);
     let e = x.move_to(3.0).await.unwrap_err();
     assert!(
-        matches!(&e, DeviceError::Rejected { code: 20, command, .. } if command == "G53 G0 X2.002"),
+        matches!(&e, DeviceError { kind: DeviceErrorKind::Rejected { code: 20, command, .. }, .. } if command == "G53 G0 X2.002"),
         "{e}"
     );
     // The flow counter was freed by the error: the next line goes through.
@@ -602,17 +622,35 @@ async fn an_alarm_during_a_move_loses_the_homing() {
     x.home().await.unwrap();
     fake.script().alarm_on_move = Some(1);
     let e = x.move_to(100.0).await.unwrap_err();
-    assert!(matches!(e, DeviceError::HardLimit { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::HardLimit { .. },
+                ..
+            }
+        ),
+        "{e}"
+    );
     assert!(e.is_recoverable());
     assert!(!ctl.is_homed('X').await);
     let e = x.move_to(10.0).await.unwrap_err();
-    assert!(matches!(e, DeviceError::NotHomed { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::NotHomed,
+                ..
+            }
+        ),
+        "{e}"
+    );
 
     x.home().await.unwrap();
     fake.script().alarm_on_move = Some(2);
     let e = x.move_to(100.0).await.unwrap_err();
     assert!(
-        matches!(&e, DeviceError::Alarm { code: 2, meaning, .. } if meaning.contains("Soft limit")),
+        matches!(&e, DeviceError { kind: DeviceErrorKind::Alarm { code: 2, meaning, .. }, .. } if meaning.contains("Soft limit")),
         "{e}"
     );
     x.home().await.unwrap();
@@ -629,14 +667,32 @@ async fn garbage_resynchronises_and_the_position_is_unverified_afterwards() {
     assert_eq!(fake.resets(), 1);
     fake.script().garbage_on_status = true;
     let e = x.position().await.unwrap_err();
-    assert!(matches!(e, DeviceError::Protocol { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::Protocol { .. },
+                ..
+            }
+        ),
+        "{e}"
+    );
     assert!(e.to_string().contains("line noise"), "{e}");
     // The next request reconnects with a handshake (soft reset) ...
     assert_near(x.position().await.unwrap(), 20.0);
     assert_eq!(fake.resets(), 2);
     // ... and refuses to move at a position it has not verified.
     let e = x.move_to(30.0).await.unwrap_err();
-    assert!(matches!(e, DeviceError::NotHomed { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::NotHomed,
+                ..
+            }
+        ),
+        "{e}"
+    );
     x.home().await.unwrap();
     assert_near(x.move_to(30.0).await.unwrap(), 30.0);
 }
@@ -650,12 +706,21 @@ async fn a_mute_controller_times_out_and_an_unplugged_port_is_disconnected() {
     fake.script().mute = true;
     let t0 = Instant::now();
     let e = x.position().await.unwrap_err();
-    assert!(matches!(e, DeviceError::Timeout { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::Timeout { .. },
+                ..
+            }
+        ),
+        "{e}"
+    );
     assert!(t0.elapsed() < Duration::from_secs(2));
     // Reconnecting to a mute controller: no banner.
     let e = x.position().await.unwrap_err();
     assert!(
-        matches!(&e, DeviceError::Timeout { request, .. } if request.contains("banner")),
+        matches!(&e, DeviceError { kind: DeviceErrorKind::Timeout { request, .. }, .. } if request.contains("banner")),
         "{e}"
     );
     fake.script().unplug = true;
@@ -665,9 +730,16 @@ async fn a_mute_controller_times_out_and_an_unplugged_port_is_disconnected() {
     assert!(
         matches!(
             e,
-            DeviceError::Disconnected { .. }
-                | DeviceError::PortUnavailable { .. }
-                | DeviceError::Timeout { .. }
+            DeviceError {
+                kind: DeviceErrorKind::Disconnected { .. },
+                ..
+            } | DeviceError {
+                kind: DeviceErrorKind::PortUnavailable { .. },
+                ..
+            } | DeviceError {
+                kind: DeviceErrorKind::Timeout { .. },
+                ..
+            }
         ),
         "{e}"
     );

@@ -9,7 +9,6 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use stagehand_devices::DeviceError;
 use stagehand_devices::cart::{CartDriver, Drive};
 use stagehand_devices::hid_relay::{self, HidRelayBank, HidTransport};
 use stagehand_devices::ir_cart::{IrBridgeCart, Output};
@@ -19,6 +18,7 @@ use stagehand_devices::rig::{Backend, SwitchBankSpec};
 use stagehand_devices::switch_bank::{SwitchBankDriver, SwitchBankHandle};
 use stagehand_devices::switched::{GpioTrigger, SwitchLaser};
 use stagehand_devices::trigger::TriggerDriver;
+use stagehand_devices::{DeviceError, DeviceErrorKind};
 
 // ---------------------------------------------------------------- pty fake plumbing
 
@@ -217,7 +217,13 @@ async fn relay_bank_switches_reads_and_restores_states_after_a_board_reset() {
     );
     let e = bank.set(9, true).await.unwrap_err();
     assert!(
-        matches!(e, DeviceError::NoSuchChannel { channel: 9, .. }),
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::NoSuchChannel { channel: 9, .. },
+                ..
+            }
+        ),
         "{e}"
     );
     assert_eq!(board.connects(), 1);
@@ -230,7 +236,7 @@ async fn relay_bank_switches_reads_and_restores_states_after_a_board_reset() {
     }
     let e = bank.set(4, true).await.unwrap_err();
     assert!(
-        matches!(&e, DeviceError::Timeout { request, .. } if request == "relay on 3"),
+        matches!(&e, DeviceError { kind: DeviceErrorKind::Timeout { request, .. }, .. } if request == "relay on 3"),
         "{e}"
     );
     // It comes back: the next command reconnects, finds the relays off, restores them first.
@@ -269,7 +275,16 @@ async fn a_board_that_is_not_numato_or_silent_or_missing_is_a_typed_error() {
     fake.lock().unwrap().version = Some("Grbl 1.1h".into());
     let board = NumatoBoard::new("lamps", &pty.path, 19_200, 0.0);
     let e = board.version().await.unwrap_err();
-    assert!(matches!(e, DeviceError::Protocol { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::Protocol { .. },
+                ..
+            }
+        ),
+        "{e}"
+    );
     assert!(e.to_string().contains("Grbl 1.1h"), "{e}");
     assert_eq!(board.connects(), 0);
     // Right firmware: the next request connects.
@@ -283,7 +298,7 @@ async fn a_board_that_is_not_numato_or_silent_or_missing_is_a_typed_error() {
     let t0 = Instant::now();
     let e = board.gpio_set(1).await.unwrap_err();
     assert!(
-        matches!(&e, DeviceError::Timeout { request, .. } if request == "ver"),
+        matches!(&e, DeviceError { kind: DeviceErrorKind::Timeout { request, .. }, .. } if request == "ver"),
         "{e}"
     );
     assert!(t0.elapsed() < Duration::from_secs(2), "{:?}", t0.elapsed());
@@ -291,7 +306,16 @@ async fn a_board_that_is_not_numato_or_silent_or_missing_is_a_typed_error() {
     let board = NumatoBoard::new("lamps", "/dev/serial/by-id/no-such-board", 19_200, 3.0);
     let mut bank = RelaySerialBank::new(board, 8).unwrap();
     let e = bank.set(1, true).await.unwrap_err();
-    assert!(matches!(e, DeviceError::PortUnavailable { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::PortUnavailable { .. },
+                ..
+            }
+        ),
+        "{e}"
+    );
     assert!(e.to_string().contains("no-such-board"), "{e}");
     assert!(RelaySerialBank::new(NumatoBoard::new("x", "/dev/null", 1, 0.0), 33).is_err());
 }
@@ -358,7 +382,16 @@ async fn a_silent_reset_is_found_restored_and_reported_once() {
     assert_eq!(fake.lock().unwrap().relays, 0b1_0010);
     // ... and the next request reports the loss (the lamps were dark for a while), once.
     let e = bank.set(3, true).await.unwrap_err();
-    assert!(matches!(e, DeviceError::Protocol { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::Protocol { .. },
+                ..
+            }
+        ),
+        "{e}"
+    );
     assert!(e.to_string().contains("relay 1 on, relay 4 on"), "{e}");
     bank.set(3, true).await.unwrap();
     assert_eq!(fake.lock().unwrap().relays, 0b1_0110);
@@ -383,7 +416,16 @@ async fn the_trigger_refuses_to_fire_into_lamps_a_reset_switched_off() {
     fake.lock().unwrap().relays = 0;
     let mark = fake.lock().unwrap().log.len();
     let e = trigger.fire(3).await.unwrap_err();
-    assert!(matches!(e, DeviceError::Protocol { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::Protocol { .. },
+                ..
+            }
+        ),
+        "{e}"
+    );
     assert_eq!(
         fake.lock().unwrap().commands(mark),
         strings(&["relay readall", "relay on 0"])
@@ -452,7 +494,16 @@ async fn switch_laser_powers_its_channel() {
     assert_eq!(fake.lock().unwrap().relays, 0);
     let mut bad = SwitchLaser::new("laser", bank, 5);
     let e = bad.set_emission(true, 520).await.unwrap_err();
-    assert!(matches!(e, DeviceError::NoSuchChannel { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::NoSuchChannel { .. },
+                ..
+            }
+        ),
+        "{e}"
+    );
 }
 
 // ---------------------------------------------------------------- in-memory HID board
@@ -524,12 +575,30 @@ async fn hid_bank_switches_reads_and_restores_after_an_unplug() {
     );
     bank.set(3, true).await.unwrap();
     let e = bank.set(5, true).await.unwrap_err();
-    assert!(matches!(e, DeviceError::NoSuchChannel { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::NoSuchChannel { .. },
+                ..
+            }
+        ),
+        "{e}"
+    );
 
     // Unplugged: a typed error naming the port; plugged back in after a reset: restored.
     fake.0.lock().unwrap().unplugged = true;
     let e = bank.set(2, true).await.unwrap_err();
-    assert!(matches!(e, DeviceError::Disconnected { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::Disconnected { .. },
+                ..
+            }
+        ),
+        "{e}"
+    );
     assert!(e.to_string().contains("emulated"), "{e}");
     {
         let mut b = fake.0.lock().unwrap();
@@ -568,9 +637,27 @@ async fn hid_bank_reopens_through_its_opener() {
     assert_eq!(opens.load(Ordering::Relaxed), 1);
     fake.0.lock().unwrap().unplugged = true;
     let e = bank.read_all().await.unwrap_err();
-    assert!(matches!(e, DeviceError::Disconnected { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::Disconnected { .. },
+                ..
+            }
+        ),
+        "{e}"
+    );
     let e = bank.read_all().await.unwrap_err();
-    assert!(matches!(e, DeviceError::PortUnavailable { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::PortUnavailable { .. },
+                ..
+            }
+        ),
+        "{e}"
+    );
     assert_eq!(opens.load(Ordering::Relaxed), 2);
     {
         let mut b = fake.0.lock().unwrap();
@@ -593,7 +680,16 @@ fn hid_enumeration_never_panics_and_a_missing_board_is_port_unavailable() {
         Ok(_) => panic!("opened a board with serial NOSUCH"),
         Err(e) => e,
     };
-    assert!(matches!(e, DeviceError::PortUnavailable { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::PortUnavailable { .. },
+                ..
+            }
+        ),
+        "{e}"
+    );
     assert!(e.to_string().contains("NOSUCH"), "{e}");
 }
 
@@ -704,7 +800,13 @@ async fn end_stops_refuse_driving_further_until_driven_back() {
     let sent = fake.lock().unwrap().words.len();
     let e = cart.drive(Drive::Forward).await.unwrap_err();
     assert!(
-        matches!(e, DeviceError::EndStop { end: "+ end", .. }),
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::EndStop { end: "+ end", .. },
+                ..
+            }
+        ),
         "{e}"
     );
     assert_eq!(fake.lock().unwrap().words.len(), sent);
@@ -716,7 +818,13 @@ async fn end_stops_refuse_driving_further_until_driven_back() {
     fake.lock().unwrap().before_ok = Some("END -".into());
     let e = cart.drive(Drive::Reverse).await.unwrap_err();
     assert!(
-        matches!(e, DeviceError::EndStop { end: "- end", .. }),
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::EndStop { end: "- end", .. },
+                ..
+            }
+        ),
         "{e}"
     );
     // The OK after the END line was consumed: stopping works and the link stays up.
@@ -741,7 +849,16 @@ async fn a_wrong_confirmation_is_a_protocol_error_and_the_next_drive_reconnects(
     let mut cart = cart(&pty.path);
     fake.lock().unwrap().wrong_ok = true;
     let e = cart.drive(Drive::Forward).await.unwrap_err();
-    assert!(matches!(e, DeviceError::Protocol { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::Protocol { .. },
+                ..
+            }
+        ),
+        "{e}"
+    );
     assert!(e.to_string().contains("OK 0000"), "{e}");
     fake.lock().unwrap().wrong_ok = false;
     cart.drive(Drive::Stop).await.unwrap();
@@ -756,7 +873,16 @@ async fn a_port_that_is_no_bridge_fails_the_handshake() {
     let mut cart = cart(&pty.path);
     let t0 = Instant::now();
     let e = cart.drive(Drive::Forward).await.unwrap_err();
-    assert!(matches!(e, DeviceError::Protocol { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::Protocol { .. },
+                ..
+            }
+        ),
+        "{e}"
+    );
     assert!(e.to_string().contains("IRBRIDGE"), "{e}");
     assert!(t0.elapsed() < Duration::from_secs(3));
     assert!(fake.lock().unwrap().words.is_empty());
@@ -767,5 +893,14 @@ async fn a_port_that_is_no_bridge_fails_the_handshake() {
         .drive(Drive::Stop)
         .await
         .unwrap_err();
-    assert!(matches!(e, DeviceError::PortUnavailable { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::PortUnavailable { .. },
+                ..
+            }
+        ),
+        "{e}"
+    );
 }

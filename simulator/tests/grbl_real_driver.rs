@@ -12,13 +12,13 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use grbl_peer::{Board, Build};
-use stagehand_devices::DeviceError;
 use stagehand_devices::axis::{AxisDriver, AxisHandle};
 use stagehand_devices::clock::RigClock;
 use stagehand_devices::grbl::codec::Command;
 use stagehand_devices::grbl::{GrblAxis, GrblController, GrblLaser};
 use stagehand_devices::laser::LaserDriver;
 use stagehand_devices::rig::{AxisSpec, BUILTIN_LIGHTSTAGE, GRBL_BAUD, parse_rig};
+use stagehand_devices::{DeviceError, DeviceErrorKind};
 use stagehand_simulator::World;
 use stagehand_simulator::emulators::grbl::GrblBuild;
 use stagehand_simulator::emulators::{Faults, GrblEmulator};
@@ -89,7 +89,10 @@ async fn scenario(rig: &mut Rig, unplug: Option<&mut dyn FnMut(bool)>) {
     assert!(e.is_ok(), "position reads before homing: {e:?}");
     assert!(matches!(
         tt.move_to(10.0).await,
-        Err(DeviceError::NotHomed { .. })
+        Err(DeviceError {
+            kind: DeviceErrorKind::NotHomed,
+            ..
+        })
     ));
     for (axis, home) in [(tt, 0.0), (arc, 0.0), (tilt, 30.0)] {
         let p = axis.home().await.expect("home");
@@ -130,12 +133,27 @@ async fn scenario(rig: &mut Rig, unplug: Option<&mut dyn FnMut(bool)>) {
         .await
         .unwrap_err();
     assert!(
-        matches!(e, DeviceError::Alarm { code: 2, .. }),
+        matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::Alarm { code: 2, .. },
+                ..
+            }
+        ),
         "soft limit: {e}"
     );
     assert!(!rig.ctl.is_homed('X').await);
     let r = tt.move_to(10.0).await;
-    assert!(matches!(r, Err(DeviceError::NotHomed { .. })), "{r:?}");
+    assert!(
+        matches!(
+            r,
+            Err(DeviceError {
+                kind: DeviceErrorKind::NotHomed,
+                ..
+            })
+        ),
+        "{r:?}"
+    );
     // Recovery: a new homing cycle. On the real board it follows a power cycle (the port
     // disappears and comes back: a typed error naming the axis, then a reconnect that requires
     // homing), because the peer's simulated switches do not survive a second homing cycle on
@@ -260,7 +278,13 @@ fn wrong_settings_are_refused_at_connect_with_the_setting_to_send() {
             let rig = open(&board.link);
             let e = rig.axes[0].home().await.unwrap_err();
             assert!(
-                matches!(e, DeviceError::Misconfigured { .. }),
+                matches!(
+                    e,
+                    DeviceError {
+                        kind: DeviceErrorKind::Misconfigured { .. },
+                        ..
+                    }
+                ),
                 "{extra}: {e}"
             );
             let text = e.to_string();
@@ -315,7 +339,13 @@ fn a_homing_switch_that_never_triggers_is_a_typed_error() {
         let e = rig.axes[0].home().await.unwrap_err();
         let text = e.to_string();
         assert!(
-            matches!(e, DeviceError::HomingFailed { code: 9, .. }),
+            matches!(
+                e,
+                DeviceError {
+                    kind: DeviceErrorKind::HomingFailed { code: 9, .. },
+                    ..
+                }
+            ),
             "{text}\n{}",
             board.traffic()
         );
@@ -324,7 +354,10 @@ fn a_homing_switch_that_never_triggers_is_a_typed_error() {
         }
         assert!(matches!(
             rig.axes[0].move_to(10.0).await,
-            Err(DeviceError::NotHomed { .. })
+            Err(DeviceError {
+                kind: DeviceErrorKind::NotHomed,
+                ..
+            })
         ));
     });
 }

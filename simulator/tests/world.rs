@@ -4,10 +4,10 @@
 
 use std::sync::Arc;
 
-use stagehand_devices::DeviceError;
 use stagehand_devices::axis::{AxisDriver, AxisHandle};
 use stagehand_devices::clock::RigClock;
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, RigSpec, parse_rig};
+use stagehand_devices::{DeviceError, DeviceErrorKind};
 use stagehand_simulator::World;
 use stagehand_simulator::sim_devices::SimAxis;
 use stagehand_simulator::world::warmup_fraction;
@@ -80,7 +80,13 @@ async fn moving_while_a_camera_exposes_is_refused_and_recorded() {
     w.begin_exposure_for_test(now, now + 1.0);
     let err = axis.move_to(10.0).await.unwrap_err();
     assert!(
-        matches!(err, DeviceError::MovingWhileExposing { .. }),
+        matches!(
+            err,
+            DeviceError {
+                kind: DeviceErrorKind::MovingWhileExposing,
+                ..
+            }
+        ),
         "{err}"
     );
     assert_eq!(w.violations().len(), 1);

@@ -11,8 +11,8 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use axum::http::StatusCode;
-use stagehand_devices::DeviceError;
 use stagehand_devices::axis::AxisHandle;
+use stagehand_devices::{DeviceError, DeviceErrorKind};
 use tokio::sync::OwnedMutexGuard;
 
 use super::error::{ApiError, ApiResult};
@@ -183,30 +183,28 @@ fn estop_interrupted(axis: &AxisHandle) -> ApiError {
 /// a stop) 409, a device failure 502.
 pub fn device_error(e: &DeviceError) -> ApiError {
     let msg = e.to_string();
-    match e {
-        DeviceError::OutsideSoftLimits {
-            device,
-            min_deg,
-            max_deg,
-            ..
+    let device = &e.device;
+    match &e.kind {
+        DeviceErrorKind::OutsideSoftLimits {
+            min_deg, max_deg, ..
         } => ApiError::unprocessable(msg).hint(format!(
             "`{device}` moves within [{min_deg}, {max_deg}]°; choose a target inside the limits"
         )),
-        DeviceError::LaserColour { fitted, .. } => ApiError::unprocessable(msg).hint(format!(
+        DeviceErrorKind::LaserColour { fitted, .. } => ApiError::unprocessable(msg).hint(format!(
             "omit colour_nm to use the fitted module, or use one of {fitted:?} nm"
         )),
-        DeviceError::NoSuchChannel { .. }
-        | DeviceError::Rejected { .. }
-        | DeviceError::Exposure { .. }
-        | DeviceError::Gain { .. } => ApiError::unprocessable(msg),
-        DeviceError::NotHomed { device } => ApiError::conflict(msg)
+        DeviceErrorKind::NoSuchChannel { .. }
+        | DeviceErrorKind::Rejected { .. }
+        | DeviceErrorKind::Exposure { .. }
+        | DeviceErrorKind::Gain { .. } => ApiError::unprocessable(msg),
+        DeviceErrorKind::NotHomed => ApiError::conflict(msg)
             .hint(format!("home it first: `POST /api/axes/{device}/home`")),
-        DeviceError::LaserNotArmed { .. } => ApiError::conflict(msg)
+        DeviceErrorKind::LaserNotArmed => ApiError::conflict(msg)
             .hint("arm it first: `POST /api/laser/arm` with {\"confirm\": true}"),
-        DeviceError::InterlockOpen { .. } => ApiError::conflict(msg).hint(
+        DeviceErrorKind::InterlockOpen => ApiError::conflict(msg).hint(
             "close the enclosure door (simulated rigs: `POST /api/interlock` with {\"closed\": true})",
         ),
-        DeviceError::Other { message, .. } if message.contains("interrupted by stop") => {
+        DeviceErrorKind::Other { message } if message.contains("interrupted by stop") => {
             ApiError::conflict(msg).hint("a stop request interrupted it; send the command again")
         }
         _ => ApiError::device(e),

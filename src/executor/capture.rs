@@ -2,7 +2,7 @@
 //! configure and arm every listed camera, fire one trigger, and collect exactly one frame per
 //! camera for that trigger id.
 
-use stagehand_devices::{DeviceError, Frame};
+use stagehand_devices::{DeviceError, DeviceErrorKind, Frame};
 
 use super::{Execution, Live, StepFailure, missing, try_all, wall_now};
 use crate::plan::{Action, Step};
@@ -153,12 +153,14 @@ fn laser_changed(ex: &Execution, interlock_closed: bool) -> DeviceError {
         .map(|l| l.id().to_string())
         .unwrap_or_else(|| "laser".into());
     if interlock_closed {
-        DeviceError::StateLost {
+        DeviceError::new(
             device,
-            message: "the laser's state changed while the cameras exposed".into(),
-        }
+            DeviceErrorKind::StateLost {
+                message: "the laser's state changed while the cameras exposed".into(),
+            },
+        )
     } else {
-        DeviceError::InterlockOpen { device }
+        DeviceError::new(device, DeviceErrorKind::InterlockOpen)
     }
 }
 
@@ -171,14 +173,14 @@ async fn verify_state(ex: &Execution, live: &Live) -> Result<(), DeviceError> {
     let want = &live.state;
     if let Some(l) = &rig.laser {
         let s = l.status();
-        let lost = |message: String| DeviceError::StateLost {
-            device: l.id().to_string(),
-            message,
+        let lost = |message: String| {
+            DeviceError::new(l.id().to_string(), DeviceErrorKind::StateLost { message })
         };
         if want.laser_on && !s.on && !rig.interlock.is_closed() {
-            return Err(DeviceError::InterlockOpen {
-                device: l.id().to_string(),
-            });
+            return Err(DeviceError::new(
+                l.id().to_string(),
+                DeviceErrorKind::InterlockOpen,
+            ));
         }
         if s.on != want.laser_on || s.armed != want.laser_armed {
             return Err(lost(format!(
@@ -219,22 +221,26 @@ async fn verify_state(ex: &Execution, live: &Live) -> Result<(), DeviceError> {
             None
         };
         if let Some(problem) = problem {
-            return Err(DeviceError::StateLost {
-                device: id.clone(),
-                message: format!("the axis {problem}"),
-            });
+            return Err(DeviceError::new(
+                id.clone(),
+                DeviceErrorKind::StateLost {
+                    message: format!("the axis {problem}"),
+                },
+            ));
         }
     }
     if let Some(w) = &rig.world {
         let on_stage = w.fixture();
         if on_stage != want.fixture {
-            return Err(DeviceError::StateLost {
-                device: "stage".into(),
-                message: format!(
-                    "`{on_stage}` is on the stage but the plan has `{}`",
-                    want.fixture
-                ),
-            });
+            return Err(DeviceError::new(
+                "stage",
+                DeviceErrorKind::StateLost {
+                    message: format!(
+                        "`{on_stage}` is on the stage but the plan has `{}`",
+                        want.fixture
+                    ),
+                },
+            ));
         }
     }
     verify_lamps(ex, live).await
@@ -263,16 +269,18 @@ async fn verify_lamps(ex: &Execution, live: &Live) -> Result<(), DeviceError> {
                 .copied()
                 .unwrap_or(false);
             if is != want {
-                return Err(DeviceError::StateLost {
-                    device: bank_id.clone(),
-                    message: format!(
-                        "lamp `{}` (channel {}) is {} but should be {}",
-                        lamp.id,
-                        lamp.channel,
-                        if is { "on" } else { "off" },
-                        if want { "on" } else { "off" }
-                    ),
-                });
+                return Err(DeviceError::new(
+                    bank_id.clone(),
+                    DeviceErrorKind::StateLost {
+                        message: format!(
+                            "lamp `{}` (channel {}) is {} but should be {}",
+                            lamp.id,
+                            lamp.channel,
+                            if is { "on" } else { "off" },
+                            if want { "on" } else { "off" }
+                        ),
+                    },
+                ));
             }
         }
     }

@@ -3,7 +3,7 @@
 
 use std::collections::BTreeMap;
 
-use stagehand_devices::DeviceError;
+use stagehand_devices::{DeviceError, DeviceErrorKind};
 
 use super::{Live, missing, try_all};
 use crate::estimate::RigState;
@@ -64,7 +64,7 @@ pub(super) async fn adopt(rig: &Rig, live: &mut Live) -> Result<(), DeviceError>
     for (id, axis) in &rig.axes {
         let s = axis.status();
         if !s.homed {
-            return Err(DeviceError::NotHomed { device: id.clone() });
+            return Err(DeviceError::new(id.clone(), DeviceErrorKind::NotHomed));
         }
         if s.moving {
             return Err(missing(

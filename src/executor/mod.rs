@@ -19,7 +19,7 @@ mod writer;
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 
-use stagehand_devices::DeviceError;
+use stagehand_devices::{DeviceError, DeviceErrorKind};
 use tokio::sync::broadcast;
 
 pub use control::{Answer, AutoConfirm, Control, Operator, RunControl};
@@ -316,7 +316,13 @@ impl Execution {
             if let Err(StepFailure::Device(e)) = &outcome {
                 telemetry::device_error(e);
             }
-            if let Err(StepFailure::Device(e @ DeviceError::InterlockOpen { .. })) = &outcome {
+            if let Err(StepFailure::Device(
+                e @ DeviceError {
+                    kind: DeviceErrorKind::InterlockOpen,
+                    ..
+                },
+            )) = &outcome
+            {
                 self.hold_for_interlock(step, live, &before, e).await?;
                 continue;
             }
@@ -373,7 +379,12 @@ impl Execution {
                 () = self.control.aborted() => return Err(StepFailure::Aborted),
             };
             match recovered {
-                Err(StepFailure::Device(e @ DeviceError::InterlockOpen { .. })) => error = e,
+                Err(StepFailure::Device(
+                    e @ DeviceError {
+                        kind: DeviceErrorKind::InterlockOpen,
+                        ..
+                    },
+                )) => error = e,
                 other => return other,
             }
         }
@@ -518,10 +529,12 @@ impl From<DeviceError> for StepFailure {
 }
 
 fn missing(device: &str, message: &str) -> DeviceError {
-    DeviceError::Other {
-        device: device.to_string(),
-        message: message.to_string(),
-    }
+    DeviceError::new(
+        device.to_string(),
+        DeviceErrorKind::Other {
+            message: message.to_string(),
+        },
+    )
 }
 
 fn axis<'a>(

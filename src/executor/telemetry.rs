@@ -2,7 +2,7 @@
 //! errors, reconnects and finished runs. The macros are no-ops until a recorder is installed
 //! (the daemon installs one; the CLI does not), so the CLI pays nothing.
 
-use stagehand_devices::DeviceError;
+use stagehand_devices::{DeviceError, DeviceErrorKind};
 
 /// Describes the executor's metrics (HELP lines); call once after installing a recorder.
 pub fn describe_metrics() {
@@ -40,13 +40,13 @@ pub(super) fn step_done(kind: &'static str, wall_s: f64) {
 /// A device failed during a step (or while recovering).
 pub(super) fn device_error(e: &DeviceError) {
     let device = e.device().to_string();
-    let dropped = match e {
-        DeviceError::MissingFrame { .. } => Some("missing"),
-        DeviceError::UnexpectedFrame { .. } => Some("unexpected"),
+    let dropped = match &e.kind {
+        DeviceErrorKind::MissingFrame { .. } => Some("missing"),
+        DeviceErrorKind::UnexpectedFrame { .. } => Some("unexpected"),
         // The camera task did not answer the frame request in time (exposure + readout).
-        DeviceError::Timeout { request, .. } if request == "frame" => Some("timeout"),
+        DeviceErrorKind::Timeout { request, .. } if request == "frame" => Some("timeout"),
         // A simulated camera's frame that never came (a stall injected into the simulation).
-        DeviceError::SimulatedFault { request, .. } if request == "frame" => Some("missing"),
+        DeviceErrorKind::SimulatedFault { request, .. } if request == "frame" => Some("missing"),
         _ => None,
     };
     if let Some(reason) = dropped {

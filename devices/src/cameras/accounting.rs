@@ -10,7 +10,7 @@
 
 use std::collections::VecDeque;
 
-use crate::error::{DeviceError, DeviceResult};
+use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 
 /// Slack beyond exposure + readout before a frame counts as missing (USB latency, driver
 /// queues, a DSLR writing its file).
@@ -134,18 +134,20 @@ impl TriggerAccounting {
             .reduce(f64::min)
     }
 
-    /// Reports triggers whose deadline has passed at `now_s` as [`DeviceError::MissingFrame`]
+    /// Reports triggers whose deadline has passed at `now_s` as [`DeviceErrorKind::MissingFrame`]
     /// (each exactly once), oldest first.
     pub fn expire(&mut self, now_s: f64) -> Vec<DeviceError> {
         let mut out = Vec::new();
         for p in self.pending.iter_mut() {
             if !p.expired && now_s >= p.deadline_s {
                 p.expired = true;
-                out.push(DeviceError::MissingFrame {
-                    device: self.device.clone(),
-                    trigger_id: p.trigger_id,
-                    timeout_s: p.timeout_s,
-                });
+                out.push(DeviceError::new(
+                    self.device.clone(),
+                    DeviceErrorKind::MissingFrame {
+                        trigger_id: p.trigger_id,
+                        timeout_s: p.timeout_s,
+                    },
+                ));
             }
         }
         out
@@ -171,11 +173,10 @@ impl TriggerAccounting {
             FrameVerdict::Late(t) => *t,
             _ => self.last_answered.unwrap_or(0),
         };
-        DeviceError::UnexpectedFrame {
-            device: self.device.clone(),
-            expected,
-            got,
-        }
+        DeviceError::new(
+            self.device.clone(),
+            DeviceErrorKind::UnexpectedFrame { expected, got },
+        )
     }
 
     /// Accounts for one delivered frame carrying camera sequence number `sequence`.
@@ -214,17 +215,19 @@ impl TriggerAccounting {
     }
 
     /// Like [`Self::on_frame`] but as a result: the trigger id the frame answers, or the
-    /// error to report. Lost frames are reported first ([`DeviceError::MissingFrame`] naming
-    /// the oldest lost trigger); a late or extra frame is [`DeviceError::UnexpectedFrame`]
+    /// error to report. Lost frames are reported first ([`DeviceErrorKind::MissingFrame`] naming
+    /// the oldest lost trigger); a late or extra frame is [`DeviceErrorKind::UnexpectedFrame`]
     /// (see [`Self::unexpected`]).
     pub fn frame_result(&mut self, sequence: u64) -> DeviceResult<u64> {
         let decision = self.on_frame(sequence);
         if let Some(&first) = decision.lost.first() {
-            return Err(DeviceError::MissingFrame {
-                device: self.device.clone(),
-                trigger_id: first,
-                timeout_s: 0.0,
-            });
+            return Err(DeviceError::new(
+                self.device.clone(),
+                DeviceErrorKind::MissingFrame {
+                    trigger_id: first,
+                    timeout_s: 0.0,
+                },
+            ));
         }
         match decision.verdict {
             FrameVerdict::Answers(id) => Ok(id),

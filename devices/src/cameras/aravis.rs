@@ -13,7 +13,7 @@
 //! - **Accounting.** Frames are matched to triggers by the GigE Vision block id (16 bits, 0
 //!   skipped, so it counts modulo 65535) or the 64-bit id of USB3 Vision and extended-id GigE.
 //! - **Faults.** A frame that arrived incomplete (packets lost that resends did not bring back)
-//!   is reported as [`DeviceError::MissingFrame`] for its trigger, never delivered. A link
+//!   is reported as [`DeviceErrorKind::MissingFrame`] for its trigger, never delivered. A link
 //!   failure (GVCP timeout, control lost, heartbeat lost) marks the camera lost: no further
 //!   command is sent to it, its triggers are reported missing at their deadline, and the next
 //!   arm (or configure while disarmed) reopens it once it answers again.
@@ -38,7 +38,7 @@ use super::HardwareCamera;
 use super::config::{self, TriggerMode};
 use super::pixels;
 use super::worker::{Blocking, Image, Link, RawFrame};
-use crate::error::{DeviceError, DeviceResult};
+use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::rig::CameraSpec;
 
 /// The input line a hardware trigger is wired to.
@@ -242,10 +242,14 @@ impl AravisCamera {
 
 /// Opens the camera `port` names: address or aravis id first, then the bare serial number.
 fn connect(device: &str, port: &str) -> DeviceResult<Camera> {
-    let unavailable = |reason: String| DeviceError::PortUnavailable {
-        device: device.to_string(),
-        port: port.to_string(),
-        reason,
+    let unavailable = |reason: String| {
+        DeviceError::new(
+            device.to_string(),
+            DeviceErrorKind::PortUnavailable {
+                port: port.to_string(),
+                reason,
+            },
+        )
     };
     let first = match Camera::new(Some(port)) {
         Ok(c) => return Ok(c),
@@ -265,16 +269,18 @@ fn connect(device: &str, port: &str) -> DeviceResult<Camera> {
         [] => Err(unavailable(format!(
             "{first}; no camera has this id, address or serial number (see `stagehand devices`)"
         ))),
-        many => Err(DeviceError::Other {
-            device: device.to_string(),
-            message: format!(
-                "serial number `{port}` is shared by {}; name the camera by its id in `port`",
-                many.iter()
-                    .map(|d| d.id.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ),
-        }),
+        many => Err(DeviceError::new(
+            device.to_string(),
+            DeviceErrorKind::Other {
+                message: format!(
+                    "serial number `{port}` is shared by {}; name the camera by its id in `port`",
+                    many.iter()
+                        .map(|d| d.id.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            },
+        )),
     }
 }
 
@@ -353,18 +359,17 @@ impl Worker {
     }
 
     fn other(&self, message: String) -> DeviceError {
-        DeviceError::Other {
-            device: self.spec.id.clone(),
-            message,
-        }
+        DeviceError::new(self.spec.id.clone(), DeviceErrorKind::Other { message })
     }
 
     fn disconnected(&self, reason: String) -> DeviceError {
-        DeviceError::Disconnected {
-            device: self.spec.id.clone(),
-            port: self.port.clone(),
-            reason,
-        }
+        DeviceError::new(
+            self.spec.id.clone(),
+            DeviceErrorKind::Disconnected {
+                port: self.port.clone(),
+                reason,
+            },
+        )
     }
 
     /// Maps an aravis error: a link failure marks the camera lost.
@@ -482,11 +487,13 @@ impl Worker {
         if let Some(address) = self.address
             && !gvcp_probe(address, PROBE_TIMEOUT)
         {
-            return Err(DeviceError::PortUnavailable {
-                device: self.spec.id.clone(),
-                port: self.port.clone(),
-                reason: format!("no answer to a GigE Vision discovery at {address}"),
-            });
+            return Err(DeviceError::new(
+                self.spec.id.clone(),
+                DeviceErrorKind::PortUnavailable {
+                    port: self.port.clone(),
+                    reason: format!("no answer to a GigE Vision discovery at {address}"),
+                },
+            ));
         }
         self.close_stream();
         // The old device leaves control (quick now that the camera answers) before the new
@@ -569,11 +576,10 @@ impl Worker {
             }
             (Some("GainRaw"), Some(back as f64))
         } else if gain != 1.0 {
-            return Err(DeviceError::Gain {
-                device: id,
-                gain,
-                max: 1.0,
-            });
+            return Err(DeviceError::new(
+                id,
+                DeviceErrorKind::Gain { gain, max: 1.0 },
+            ));
         } else {
             (None, None)
         };
@@ -777,12 +783,14 @@ impl Blocking for Worker {
             other => {
                 self.closed.incomplete_frames += 1;
                 tracing::warn!(device = %self.spec.id, frame_id, status = ?other, "incomplete frame reported missing");
-                Some(Err(DeviceError::MissingFrame {
-                    device: self.spec.id.clone(),
-                    // Filled in by the worker with the trigger this frame answers.
-                    trigger_id: 0,
-                    timeout_s: 0.0,
-                }))
+                Some(Err(DeviceError::new(
+                    self.spec.id.clone(),
+                    DeviceErrorKind::MissingFrame {
+                        // Filled in by the worker with the trigger this frame answers.
+                        trigger_id: 0,
+                        timeout_s: 0.0,
+                    },
+                )))
             }
         };
         // aravis sets a buffer's frame id from the frame's leader only: clear it, so a
@@ -848,7 +856,10 @@ mod tests {
         acc.expect(6, 0.0, 1.0);
         assert!(matches!(
             acc.frame_result(gv_sequence(4)),
-            Err(DeviceError::MissingFrame { trigger_id: 5, .. })
+            Err(DeviceError {
+                kind: DeviceErrorKind::MissingFrame { trigger_id: 5, .. },
+                ..
+            })
         ));
     }
 

@@ -4,7 +4,7 @@
 
 use std::path::PathBuf;
 
-use crate::error::{DeviceError, DeviceResult};
+use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::rig::{Backend, CameraSpec, TriggerSpec};
 
 /// How a camera learns that a trigger happened.
@@ -28,10 +28,12 @@ impl TriggerMode {
 }
 
 fn bad(device: &str, message: impl Into<String>) -> DeviceError {
-    DeviceError::Other {
-        device: device.to_string(),
-        message: message.into(),
-    }
+    DeviceError::new(
+        device.to_string(),
+        DeviceErrorKind::Other {
+            message: message.into(),
+        },
+    )
 }
 
 fn port_of<'a>(spec: &'a CameraSpec, example: &str) -> DeviceResult<&'a str> {
@@ -142,12 +144,14 @@ pub fn exposure_us(device: &str, exposure_s: f64, min_us: f64, max_us: f64) -> D
     if us.is_finite() && us >= min_us && us <= max_us {
         Ok(us)
     } else {
-        Err(DeviceError::Exposure {
-            device: device.to_string(),
-            exposure_s,
-            min_s: min_us / 1e6,
-            max_s: max_us / 1e6,
-        })
+        Err(DeviceError::new(
+            device.to_string(),
+            DeviceErrorKind::Exposure {
+                exposure_s,
+                min_s: min_us / 1e6,
+                max_s: max_us / 1e6,
+            },
+        ))
     }
 }
 
@@ -158,12 +162,14 @@ pub fn v4l_exposure_units(device: &str, exposure_s: f64, min: i64, max: i64) -> 
     if units.is_finite() && units >= min as f64 && units <= max as f64 {
         Ok(units as i64)
     } else {
-        Err(DeviceError::Exposure {
-            device: device.to_string(),
-            exposure_s,
-            min_s: min as f64 * 1e-4,
-            max_s: max as f64 * 1e-4,
-        })
+        Err(DeviceError::new(
+            device.to_string(),
+            DeviceErrorKind::Exposure {
+                exposure_s,
+                min_s: min as f64 * 1e-4,
+                max_s: max as f64 * 1e-4,
+            },
+        ))
     }
 }
 
@@ -189,11 +195,13 @@ pub fn linear_gain_value(
     max: i64,
 ) -> DeviceResult<i64> {
     if !(gain.is_finite() && gain >= 1.0 && gain <= max_gain) {
-        return Err(DeviceError::Gain {
-            device: device.to_string(),
-            gain,
-            max: max_gain,
-        });
+        return Err(DeviceError::new(
+            device.to_string(),
+            DeviceErrorKind::Gain {
+                gain,
+                max: max_gain,
+            },
+        ));
     }
     if max_gain <= 1.0 || max <= min {
         return Ok(min);
@@ -209,11 +217,13 @@ pub fn gain_db(device: &str, gain: f64, min_db: f64, max_db: f64) -> DeviceResul
     if gain.is_finite() && gain > 0.0 && db >= min_db - 1e-9 && db <= max_db + 1e-9 {
         Ok(db.clamp(min_db, max_db))
     } else {
-        Err(DeviceError::Gain {
-            device: device.to_string(),
-            gain,
-            max: 10f64.powf(max_db / 20.0),
-        })
+        Err(DeviceError::new(
+            device.to_string(),
+            DeviceErrorKind::Gain {
+                gain,
+                max: 10f64.powf(max_db / 20.0),
+            },
+        ))
     }
 }
 
@@ -251,7 +261,7 @@ pub fn nearest_choice(
         .map(|(c, v, _)| (c, v))
 }
 
-/// The shutter-speed choice for `exposure_s`, or a [`DeviceError::Exposure`] naming the
+/// The shutter-speed choice for `exposure_s`, or a [`DeviceErrorKind::Exposure`] naming the
 /// range the camera offers.
 pub fn shutter_choice<'a>(
     device: &str,
@@ -262,12 +272,14 @@ pub fn shutter_choice<'a>(
         .map(|(c, _)| c)
         .ok_or_else(|| {
             let values: Vec<f64> = choices.iter().filter_map(|c| parse_shutter_s(c)).collect();
-            DeviceError::Exposure {
-                device: device.to_string(),
-                exposure_s,
-                min_s: values.iter().copied().fold(f64::INFINITY, f64::min),
-                max_s: values.iter().copied().fold(0.0, f64::max),
-            }
+            DeviceError::new(
+                device.to_string(),
+                DeviceErrorKind::Exposure {
+                    exposure_s,
+                    min_s: values.iter().copied().fold(f64::INFINITY, f64::min),
+                    max_s: values.iter().copied().fold(0.0, f64::max),
+                },
+            )
         })
 }
 
@@ -279,10 +291,14 @@ pub fn iso_choice<'a>(device: &str, choices: &'a [String], gain: f64) -> DeviceR
         .filter_map(|c| parse(c))
         .fold(f64::INFINITY, f64::min);
     let top = choices.iter().filter_map(|c| parse(c)).fold(0.0, f64::max);
-    let err = || DeviceError::Gain {
-        device: device.to_string(),
-        gain,
-        max: if base.is_finite() { top / base } else { 1.0 },
+    let err = || {
+        DeviceError::new(
+            device.to_string(),
+            DeviceErrorKind::Gain {
+                gain,
+                max: if base.is_finite() { top / base } else { 1.0 },
+            },
+        )
     };
     if !base.is_finite() {
         return Err(err());
@@ -405,12 +421,14 @@ mod tests {
         let e = exposure_us("c", 20.0, 10.0, 1e7).unwrap_err();
         assert_eq!(
             e,
-            DeviceError::Exposure {
-                device: "c".into(),
-                exposure_s: 20.0,
-                min_s: 1e-5,
-                max_s: 10.0
-            }
+            DeviceError::new(
+                "c",
+                DeviceErrorKind::Exposure {
+                    exposure_s: 20.0,
+                    min_s: 1e-5,
+                    max_s: 10.0
+                }
+            )
         );
         assert!(exposure_us("c", f64::NAN, 10.0, 1e7).is_err());
         assert_eq!(v4l_exposure_units("c", 0.0333, 1, 5000), Ok(333));
@@ -432,7 +450,10 @@ mod tests {
         assert!(gain_db("c", 1.0, 0.0, 24.0).is_ok());
         assert!(matches!(
             gain_db("c", 100.0, 0.0, 24.0),
-            Err(DeviceError::Gain { .. })
+            Err(DeviceError {
+                kind: DeviceErrorKind::Gain { .. },
+                ..
+            })
         ));
     }
 
@@ -449,14 +470,14 @@ mod tests {
         assert_eq!(shutter_choice("c", &shutters, 0.26), Ok("1/4"));
         let e = shutter_choice("c", &shutters, 0.05).unwrap_err();
         assert!(
-            matches!(e, DeviceError::Exposure { min_s, max_s, .. } if min_s == 1.0 / 4000.0 && max_s == 30.0),
+            matches!(e, DeviceError { kind: DeviceErrorKind::Exposure { min_s, max_s, .. }, .. } if min_s == 1.0 / 4000.0 && max_s == 30.0),
             "{e:?}"
         );
         let isos = s(&["Auto", "100", "200", "400", "800", "1600"]);
         assert_eq!(iso_choice("c", &isos, 1.0), Ok("100"));
         assert_eq!(iso_choice("c", &isos, 4.0), Ok("400"));
         assert!(
-            matches!(iso_choice("c", &isos, 32.0), Err(DeviceError::Gain { max, .. }) if max == 16.0)
+            matches!(iso_choice("c", &isos, 32.0), Err(DeviceError { kind: DeviceErrorKind::Gain { max, .. }, .. }) if max == 16.0)
         );
         assert!(iso_choice("c", &s(&["Auto"]), 1.0).is_err());
     }

@@ -17,7 +17,7 @@ use gphoto2::{Camera, Context};
 use super::HardwareCamera;
 use super::config::{self, Gphoto2Target, TriggerMode};
 use super::worker::{Blocking, Image, Link, RawFrame};
-use crate::error::{DeviceError, DeviceResult};
+use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::rig::CameraSpec;
 
 /// A libgphoto2 camera driven from its own thread.
@@ -53,10 +53,14 @@ impl Worker {
         let shown = match &target {
             Gphoto2Target::Port(p) | Gphoto2Target::Model(p) => p.clone(),
         };
-        let unavailable = |reason: String| DeviceError::PortUnavailable {
-            device: spec.id.clone(),
-            port: shown.clone(),
-            reason,
+        let unavailable = |reason: String| {
+            DeviceError::new(
+                spec.id.clone(),
+                DeviceErrorKind::PortUnavailable {
+                    port: shown.clone(),
+                    reason,
+                },
+            )
         };
         let context = Context::new().map_err(|e| unavailable(e.to_string()))?;
         let found: Vec<_> = context
@@ -98,10 +102,12 @@ impl Worker {
     }
 
     fn err(&self, what: &str, e: impl std::fmt::Display) -> DeviceError {
-        DeviceError::Other {
-            device: self.spec.id.clone(),
-            message: format!("{what} on {}: {e}", self.port),
-        }
+        DeviceError::new(
+            self.spec.id.clone(),
+            DeviceErrorKind::Other {
+                message: format!("{what} on {}: {e}", self.port),
+            },
+        )
     }
 
     /// Reads a radio widget and its choices (the crate panics on some library errors; that
@@ -143,9 +149,8 @@ impl Worker {
         RawFrame {
             sequence: self.count,
             image: data.and_then(|d| {
-                decode(&d).map_err(|m| DeviceError::Other {
-                    device: self.spec.id.clone(),
-                    message: m,
+                decode(&d).map_err(|m| {
+                    DeviceError::new(self.spec.id.clone(), DeviceErrorKind::Other { message: m })
                 })
             }),
         }

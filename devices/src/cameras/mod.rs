@@ -189,7 +189,7 @@ mod worker {
     use super::accounting::{FrameVerdict, TriggerAccounting, frame_timeout_s};
     use super::config::TriggerMode;
     use crate::clock::duration_s;
-    use crate::error::{DeviceError, DeviceResult};
+    use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
     use crate::frame::Frame;
 
     /// Longest a library call on the worker may take before the async side gives up.
@@ -204,7 +204,7 @@ mod worker {
     pub struct RawFrame {
         pub sequence: u64,
         /// Converted image, or why it could not be converted (the frame still counts). A
-        /// frame that arrived incomplete is [`DeviceError::MissingFrame`]; the worker fills in
+        /// frame that arrived incomplete is [`DeviceErrorKind::MissingFrame`]; the worker fills in
         /// the trigger it answers, so it is reported like a frame that never came.
         pub image: DeviceResult<Image>,
     }
@@ -297,9 +297,13 @@ mod worker {
                         let _ = ready_tx.send(Err(e));
                     }
                 })
-                .map_err(|e| DeviceError::Other {
-                    device: device.to_string(),
-                    message: format!("cannot start the camera thread: {e}"),
+                .map_err(|e| {
+                    DeviceError::new(
+                        device.to_string(),
+                        DeviceErrorKind::Other {
+                            message: format!("cannot start the camera thread: {e}"),
+                        },
+                    )
                 })?;
             match ready_rx.recv_timeout(duration_s(CALL_TIMEOUT_S)) {
                 Ok(Ok(())) => Ok(Self {
@@ -309,18 +313,18 @@ mod worker {
                     last_expected: None,
                 }),
                 Ok(Err(e)) => Err(e),
-                Err(_) => Err(DeviceError::Timeout {
-                    device: device.to_string(),
-                    request: "open".into(),
-                    timeout_s: CALL_TIMEOUT_S,
-                }),
+                Err(_) => Err(DeviceError::new(
+                    device.to_string(),
+                    DeviceErrorKind::Timeout {
+                        request: "open".into(),
+                        timeout_s: CALL_TIMEOUT_S,
+                    },
+                )),
             }
         }
 
         fn gone(&self) -> DeviceError {
-            DeviceError::Gone {
-                device: self.device.clone(),
-            }
+            DeviceError::new(self.device.clone(), DeviceErrorKind::Gone)
         }
 
         async fn call(
@@ -333,11 +337,13 @@ mod worker {
             match tokio::time::timeout(duration_s(CALL_TIMEOUT_S), rx).await {
                 Ok(Ok(r)) => r,
                 Ok(Err(_)) => Err(self.gone()),
-                Err(_) => Err(DeviceError::Timeout {
-                    device: self.device.clone(),
-                    request: what.into(),
-                    timeout_s: CALL_TIMEOUT_S,
-                }),
+                Err(_) => Err(DeviceError::new(
+                    self.device.clone(),
+                    DeviceErrorKind::Timeout {
+                        request: what.into(),
+                        timeout_s: CALL_TIMEOUT_S,
+                    },
+                )),
             }
         }
 
@@ -372,7 +378,10 @@ mod worker {
             loop {
                 let item = self.frames.recv().await.ok_or_else(|| self.gone())?;
                 let stale = match &item {
-                    Err(DeviceError::MissingFrame { trigger_id, .. }) => Some(*trigger_id),
+                    Err(DeviceError {
+                        kind: DeviceErrorKind::MissingFrame { trigger_id, .. },
+                        ..
+                    }) => Some(*trigger_id),
                     Ok(f) => Some(f.trigger_id),
                     Err(_) => None,
                 }
@@ -421,11 +430,13 @@ mod worker {
                      camera_notes: Option<serde_json::Value>| {
             let d = acc.on_frame(raw.sequence);
             for t in d.lost {
-                send(Err(DeviceError::MissingFrame {
-                    device: device.clone(),
-                    trigger_id: t,
-                    timeout_s: 0.0,
-                }));
+                send(Err(DeviceError::new(
+                    device.clone(),
+                    DeviceErrorKind::MissingFrame {
+                        trigger_id: t,
+                        timeout_s: 0.0,
+                    },
+                )));
             }
             let trigger_id = match d.verdict {
                 FrameVerdict::Answers(t) | FrameVerdict::Late(t) => t,
@@ -441,13 +452,16 @@ mod worker {
             }
             let image = match raw.image {
                 // An incomplete frame: lost, like one that never came, for this trigger.
-                Err(DeviceError::MissingFrame {
-                    device, timeout_s, ..
-                }) => Err(DeviceError::MissingFrame {
+                Err(DeviceError {
                     device,
-                    trigger_id,
-                    timeout_s,
-                }),
+                    kind: DeviceErrorKind::MissingFrame { timeout_s, .. },
+                }) => Err(DeviceError::new(
+                    device,
+                    DeviceErrorKind::MissingFrame {
+                        trigger_id,
+                        timeout_s,
+                    },
+                )),
                 other => other,
             };
             send(image.map(|img| Frame {
@@ -505,9 +519,10 @@ mod worker {
                     }
                     Cmd::Expect(id, e) => {
                         if !armed {
-                            send(Err(DeviceError::NotArmed {
-                                device: device.clone(),
-                            }));
+                            send(Err(DeviceError::new(
+                                device.clone(),
+                                DeviceErrorKind::NotArmed,
+                            )));
                             continue;
                         }
                         acc.expect(id, now(), frame_timeout_s(e, cam.readout_s()));
@@ -573,7 +588,7 @@ mod worker_tests {
 
     use super::config::TriggerMode;
     use super::worker::{Blocking, Image, Link, RawFrame};
-    use crate::error::{DeviceError, DeviceResult};
+    use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 
     /// A hardware-triggered camera whose frames the test pushes (sequence numbers).
     struct Mock(Arc<Mutex<Vec<u64>>>);
@@ -644,7 +659,16 @@ mod worker_tests {
             .await
             .expect("in time")
             .unwrap_err();
-        assert!(matches!(e, DeviceError::UnexpectedFrame { .. }), "{e}");
+        assert!(
+            matches!(
+                e,
+                DeviceError {
+                    kind: DeviceErrorKind::UnexpectedFrame { .. },
+                    ..
+                }
+            ),
+            "{e}"
+        );
     }
 
     /// A frame that comes after its trigger was reported missing keeps its own trigger id and
@@ -662,7 +686,13 @@ mod worker_tests {
             .expect("the deadline passes")
             .unwrap_err();
         assert!(
-            matches!(e, DeviceError::MissingFrame { trigger_id: 1, .. }),
+            matches!(
+                e,
+                DeviceError {
+                    kind: DeviceErrorKind::MissingFrame { trigger_id: 1, .. },
+                    ..
+                }
+            ),
             "{e}"
         );
         // Trigger 1's frame (sequence 5) turns up late, then trigger 2's (6).

@@ -20,7 +20,7 @@ use super::HardwareCamera;
 use super::config::{self, TriggerMode};
 use super::pixels;
 use super::worker::{Blocking, Image, Link, RawFrame};
-use crate::error::{DeviceError, DeviceResult};
+use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::rig::CameraSpec;
 
 /// V4L2 control ids (linux/v4l2-controls.h).
@@ -75,10 +75,14 @@ struct Worker {
 
 impl Worker {
     fn open(spec: CameraSpec, path: PathBuf, mode: TriggerMode) -> DeviceResult<Self> {
-        let dev = Device::with_path(&path).map_err(|e| DeviceError::PortUnavailable {
-            device: spec.id.clone(),
-            port: path.display().to_string(),
-            reason: e.to_string(),
+        let dev = Device::with_path(&path).map_err(|e| {
+            DeviceError::new(
+                spec.id.clone(),
+                DeviceErrorKind::PortUnavailable {
+                    port: path.display().to_string(),
+                    reason: e.to_string(),
+                },
+            )
         })?;
         let format = negotiate(&dev, &spec, &path)?;
         // `query_controls` unwraps on control types it does not know; a panic here only means
@@ -109,18 +113,22 @@ impl Worker {
     }
 
     fn err(&self, message: impl Into<String>) -> DeviceError {
-        DeviceError::Other {
-            device: self.spec.id.clone(),
-            message: message.into(),
-        }
+        DeviceError::new(
+            self.spec.id.clone(),
+            DeviceErrorKind::Other {
+                message: message.into(),
+            },
+        )
     }
 
     fn lost(&self, e: std::io::Error) -> DeviceError {
-        DeviceError::Disconnected {
-            device: self.spec.id.clone(),
-            port: self.path.display().to_string(),
-            reason: e.to_string(),
-        }
+        DeviceError::new(
+            self.spec.id.clone(),
+            DeviceErrorKind::Disconnected {
+                port: self.path.display().to_string(),
+                reason: e.to_string(),
+            },
+        )
     }
 
     fn set(&self, id: u32, value: Value, what: &str) -> DeviceResult<()> {
@@ -183,18 +191,22 @@ fn negotiate(dev: &Device, spec: &CameraSpec, path: &std::path::Path) -> DeviceR
             }
             Ok(got) => last = Some(got.fourcc.repr),
             Err(e) => {
-                return Err(DeviceError::PortUnavailable {
-                    device: spec.id.clone(),
-                    port: path.display().to_string(),
-                    reason: format!("cannot set the pixel format: {e}"),
-                });
+                return Err(DeviceError::new(
+                    spec.id.clone(),
+                    DeviceErrorKind::PortUnavailable {
+                        port: path.display().to_string(),
+                        reason: format!("cannot set the pixel format: {e}"),
+                    },
+                ));
             }
         }
     }
-    Err(DeviceError::Other {
-        device: spec.id.clone(),
-        message: unsupported(&last.unwrap_or(*b"????")),
-    })
+    Err(DeviceError::new(
+        spec.id.clone(),
+        DeviceErrorKind::Other {
+            message: unsupported(&last.unwrap_or(*b"????")),
+        },
+    ))
 }
 
 impl Blocking for Worker {
@@ -325,7 +337,10 @@ mod tests {
         )
         .expect("spec");
         match V4lCamera::open(&spec, TriggerMode::Software) {
-            Err(DeviceError::PortUnavailable { port, .. }) => assert_eq!(port, "/dev/video987"),
+            Err(DeviceError {
+                kind: DeviceErrorKind::PortUnavailable { port, .. },
+                ..
+            }) => assert_eq!(port, "/dev/video987"),
             Err(e) => panic!("wrong error {e}"),
             Ok(_) => panic!("opened a device that does not exist"),
         }

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use super::controller::{GrblController, letter_of};
 use crate::axis::AxisDriver;
-use crate::error::{DeviceError, DeviceResult};
+use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::rig::AxisSpec;
 
 /// The axis `spec.controller_axis` of a shared [`GrblController`].
@@ -19,22 +19,21 @@ impl GrblAxis {
     /// The axis described by `spec` on `controller`. Fails if `controller_axis` is not X, Y or
     /// Z, or if the controller was not built with this axis (so `$10x` was not checked).
     pub fn new(controller: Arc<GrblController>, spec: &AxisSpec) -> DeviceResult<Self> {
-        let letter = letter_of(spec).ok_or_else(|| DeviceError::Other {
-            device: spec.id.clone(),
-            message: format!(
+        let letter = letter_of(spec).ok_or_else(|| DeviceError::new(spec.id.clone(), DeviceErrorKind::Other { message: format!(
                 "controller_axis is {:?}; a GRBL axis needs controller_axis = \"X\", \"Y\" or \"Z\"",
                 spec.controller_axis
-            ),
-        })?;
+            ) }))?;
         if !controller.serves(spec, letter) {
-            return Err(DeviceError::Other {
-                device: spec.id.clone(),
-                message: format!(
-                    "the GRBL controller on {} was not set up with axis {letter} of `{}`",
-                    controller.port(),
-                    spec.id
-                ),
-            });
+            return Err(DeviceError::new(
+                spec.id.clone(),
+                DeviceErrorKind::Other {
+                    message: format!(
+                        "the GRBL controller on {} was not set up with axis {letter} of `{}`",
+                        controller.port(),
+                        spec.id
+                    ),
+                },
+            ));
         }
         Ok(Self {
             controller,

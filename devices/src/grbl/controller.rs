@@ -39,7 +39,7 @@ use super::codes::{alarm_meaning, error_meaning};
 use super::flow::Flow;
 use super::settings::{self, BuildInfo, MachineMap, Settings};
 use crate::clock::duration_s;
-use crate::error::{DeviceError, DeviceResult};
+use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::motion::move_duration_s;
 use crate::rig::AxisSpec;
 use crate::serial_link::SerialLink;
@@ -219,7 +219,7 @@ impl GrblController {
 
     /// Switches the spindle output (the laser) with `M3 S<power>` or `M5`, then confirms the
     /// output state from the status reports (`A:S` with `Ov:`, and the `FS:` spindle speed):
-    /// a laser that does not follow is [`DeviceError::LaserNotSwitched`].
+    /// a laser that does not follow is [`DeviceErrorKind::LaserNotSwitched`].
     pub async fn switch_spindle(
         &self,
         device: &str,
@@ -248,16 +248,12 @@ impl GrblController {
                     return Ok(());
                 }
                 let wanted = if on { "on" } else { "off" };
-                return Err(DeviceError::LaserNotSwitched {
-                    device: device.to_string(),
-                    wanted,
-                    reason: format!(
+                return Err(DeviceError::new(device.to_string(), DeviceErrorKind::LaserNotSwitched { wanted, reason: format!(
                         "after `{}` the controller on {} reports the spindle output {} at speed {speed}",
                         cmd.line(),
                         self.port,
                         if output { "on (A:S)" } else { "off" },
-                    ),
-                });
+                    ) }));
             }
             Err(c.link.protocol(format!(
                 "no status report with `Ov:` in {OV_REPORTS} reports after `{}`, so the laser output cannot be verified",
@@ -347,7 +343,13 @@ impl GrblController {
     /// The error for an alarm raised while a move of axis `idx` was under way: `HardLimit`
     /// with the position for ALARM:1, `Alarm` otherwise.
     async fn alarm_during_move(&self, idx: usize, e: DeviceError) -> DeviceError {
-        if !matches!(e, DeviceError::Alarm { code: 1, .. }) {
+        if !matches!(
+            e,
+            DeviceError {
+                kind: DeviceErrorKind::Alarm { code: 1, .. },
+                ..
+            }
+        ) {
             return e;
         }
         let mut c = self.conn.lock().await;
@@ -370,19 +372,22 @@ impl GrblController {
     ) -> DeviceResult<f64> {
         let idx = index(letter, &self.label)?;
         if !target_deg.is_finite() {
-            return Err(DeviceError::Other {
-                device: device.to_string(),
-                message: format!("target {target_deg} is not a number"),
-            });
+            return Err(DeviceError::new(
+                device.to_string(),
+                DeviceErrorKind::Other {
+                    message: format!("target {target_deg} is not a number"),
+                },
+            ));
         }
         // One and a half microsteps, plus the rounding of the 3-decimal report.
         let tolerance = 1.5 / spec.steps_per_deg.max(1e-9) + 0.0005;
         let (cmd, sent, seq, epoch, alarms, deadline, timeout_s) = {
             let mut c = self.ready_conn().await?;
             if !c.homed[idx] || c.in_alarm {
-                return Err(DeviceError::NotHomed {
-                    device: device.to_string(),
-                });
+                return Err(DeviceError::new(
+                    device.to_string(),
+                    DeviceErrorKind::NotHomed,
+                ));
             }
             let machine = c.to_machine(idx, target_deg);
             let cmd = Command::Move {
@@ -458,11 +463,13 @@ impl GrblController {
                 idle_away = 0;
             }
             if Instant::now() >= deadline {
-                return Err(DeviceError::Timeout {
-                    device: device.to_string(),
-                    request: cmd.line(),
-                    timeout_s,
-                });
+                return Err(DeviceError::new(
+                    device.to_string(),
+                    DeviceErrorKind::Timeout {
+                        request: cmd.line(),
+                        timeout_s,
+                    },
+                ));
             }
             tokio::time::sleep(duration_s(POLL_S)).await;
         }
@@ -729,11 +736,13 @@ impl Conn {
         self.exchange(Command::Settings).await?;
         let problems = settings::problems(&self.settings, &self.build, &self.axes, has_laser);
         if !problems.is_empty() {
-            let e = DeviceError::Misconfigured {
-                device: self.link.device().to_string(),
-                port: self.link.path().to_string(),
-                problems: problems.join("; "),
-            };
+            let e = DeviceError::new(
+                self.link.device().to_string(),
+                DeviceErrorKind::Misconfigured {
+                    port: self.link.path().to_string(),
+                    problems: problems.join("; "),
+                },
+            );
             self.link.close();
             return Err(e);
         }
@@ -793,10 +802,16 @@ impl Conn {
             self.expect_reset = Some(ResetCause::Reconnect);
             self.send_realtime(Realtime::SoftReset).await?;
             match self.await_banner(false).await {
-                Err(DeviceError::Timeout { .. }) if tries == 0 && self.link.is_open() => {
+                Err(DeviceError {
+                    kind: DeviceErrorKind::Timeout { .. },
+                    ..
+                }) if tries == 0 && self.link.is_open() => {
                     tries += 1;
                 }
-                Err(DeviceError::Timeout { .. }) if tries == 0 => {
+                Err(DeviceError {
+                    kind: DeviceErrorKind::Timeout { .. },
+                    ..
+                }) if tries == 0 => {
                     // `deaf` closed the link: reopen it for the second reset.
                     tries += 1;
                     self.link.open()?;
@@ -942,8 +957,16 @@ impl Conn {
     async fn next_reply(&mut self, slice_s: f64, request: &str) -> DeviceResult<Option<Reply>> {
         match self.link.read_line(EOL, request, slice_s).await {
             Ok(line) => Ok(Some(parse_line(&line))),
-            Err(DeviceError::Timeout { .. }) => Ok(None),
-            Err(e @ DeviceError::Protocol { .. }) => {
+            Err(DeviceError {
+                kind: DeviceErrorKind::Timeout { .. },
+                ..
+            }) => Ok(None),
+            Err(
+                e @ DeviceError {
+                    kind: DeviceErrorKind::Protocol { .. },
+                    ..
+                },
+            ) => {
                 self.resync();
                 Err(e)
             }
@@ -1094,11 +1117,13 @@ impl Conn {
     fn deaf(&mut self, request: &str, timeout_s: f64) -> DeviceError {
         self.link.close();
         self.connected = false;
-        DeviceError::Timeout {
-            device: self.link.device().to_string(),
-            request: request.to_string(),
-            timeout_s,
-        }
+        DeviceError::new(
+            self.link.device().to_string(),
+            DeviceErrorKind::Timeout {
+                request: request.to_string(),
+                timeout_s,
+            },
+        )
     }
 
     /// Fails if the controller was reset, the link lost, or an alarm raised since a request
@@ -1122,11 +1147,13 @@ impl Conn {
             });
         }
         if !self.ready() {
-            return Err(DeviceError::Disconnected {
-                device: self.link.device().to_string(),
-                port: self.link.path().to_string(),
-                reason: format!("the link was closed after a fault during `{}`", cmd.line()),
-            });
+            return Err(DeviceError::new(
+                self.link.device().to_string(),
+                DeviceErrorKind::Disconnected {
+                    port: self.link.path().to_string(),
+                    reason: format!("the link was closed after a fault during `{}`", cmd.line()),
+                },
+            ));
         }
         Ok(())
     }
@@ -1134,32 +1161,35 @@ impl Conn {
     fn alarm_error(&self, position_deg: Option<f64>) -> DeviceError {
         let device = self.link.device().to_string();
         match (self.last_alarm, position_deg) {
-            (1, Some(position_deg)) => DeviceError::HardLimit {
+            (1, Some(position_deg)) => {
+                DeviceError::new(device, DeviceErrorKind::HardLimit { position_deg })
+            }
+            (code, _) => DeviceError::new(
                 device,
-                position_deg,
-            },
-            (code, _) => DeviceError::Alarm {
-                device,
-                code,
-                meaning: alarm_meaning(code).to_string(),
-            },
+                DeviceErrorKind::Alarm {
+                    code,
+                    meaning: alarm_meaning(code).to_string(),
+                },
+            ),
         }
     }
 
     fn rejected(&self, cmd: &Command, code: u32) -> DeviceError {
-        DeviceError::Rejected {
-            device: self.link.device().to_string(),
-            command: cmd.line(),
-            code,
-            meaning: error_meaning(code).to_string(),
-        }
+        DeviceError::new(
+            self.link.device().to_string(),
+            DeviceErrorKind::Rejected {
+                command: cmd.line(),
+                code,
+                meaning: error_meaning(code).to_string(),
+            },
+        )
     }
 
     fn other(&self, message: String) -> DeviceError {
-        DeviceError::Other {
-            device: self.link.device().to_string(),
-            message,
-        }
+        DeviceError::new(
+            self.link.device().to_string(),
+            DeviceErrorKind::Other { message },
+        )
     }
 }
 
@@ -1172,18 +1202,21 @@ pub(crate) fn letter_of(spec: &AxisSpec) -> Option<char> {
 }
 
 fn index(letter: char, label: &str) -> DeviceResult<usize> {
-    axis_index(letter).ok_or_else(|| DeviceError::Other {
-        device: label.to_string(),
-        message: format!("`{letter}` is not a GRBL axis letter (X, Y or Z)"),
+    axis_index(letter).ok_or_else(|| {
+        DeviceError::new(
+            label.to_string(),
+            DeviceErrorKind::Other {
+                message: format!("`{letter}` is not a GRBL axis letter (X, Y or Z)"),
+            },
+        )
     })
 }
 
-/// A failed homing cycle as [`DeviceError::HomingFailed`] (for an alarm) saying what to check.
+/// A failed homing cycle as [`DeviceErrorKind::HomingFailed`] (for an alarm) saying what to check.
 fn homing_error(e: DeviceError, cmd: &Command, mask: [bool; 3], port: &str) -> DeviceError {
-    let DeviceError::Alarm {
+    let DeviceError {
         device,
-        code,
-        meaning,
+        kind: DeviceErrorKind::Alarm { code, meaning },
     } = e
     else {
         return e;
@@ -1212,12 +1245,14 @@ fn homing_error(e: DeviceError, cmd: &Command, mask: [bool; 3], port: &str) -> D
             cmd.line()
         ),
     };
-    DeviceError::HomingFailed {
+    DeviceError::new(
         device,
-        code,
-        meaning,
-        check,
-    }
+        DeviceErrorKind::HomingFailed {
+            code,
+            meaning,
+            check,
+        },
+    )
 }
 
 /// The same error naming `name` as its device (an axis id instead of the controller).
@@ -1263,11 +1298,13 @@ mod tests {
     #[test]
     fn errors_are_renamed_to_the_axis() {
         let e = named(
-            DeviceError::Timeout {
-                device: "grbl".into(),
-                request: "?".into(),
-                timeout_s: 1.0,
-            },
+            DeviceError::new(
+                "grbl",
+                DeviceErrorKind::Timeout {
+                    request: "?".into(),
+                    timeout_s: 1.0,
+                },
+            ),
             "turntable",
         );
         assert_eq!(e.device(), "turntable");
@@ -1287,7 +1324,7 @@ mod tests {
         assert!(c.in_alarm && c.homed == [false; 3] && c.alarm_events == 1);
         assert!(matches!(
             c.alarm_error(Some(3.0)),
-            DeviceError::HardLimit { position_deg, .. } if position_deg == 3.0
+            DeviceError { kind: DeviceErrorKind::HardLimit { position_deg, .. }, .. } if position_deg == 3.0
         ));
         c.homed = [true; 3];
         c.expect_reset = Some(ResetCause::Stop);

@@ -16,7 +16,7 @@ use super::codec::{
     self, HidCommand, HidState, MAX_CHANNELS, PRODUCT_ID, REPORT_ID, REPORT_LEN, VENDOR_ID,
 };
 use crate::clock::duration_s;
-use crate::error::{DeviceError, DeviceResult};
+use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::switch_bank::SwitchBankDriver;
 
 /// Longest wait for the transport thread to answer one request.
@@ -213,12 +213,15 @@ impl HidRelayBank {
     /// board is a `PortUnavailable` error at once; later failures reopen the same serial.
     pub fn open(device: &str, serial: Option<&str>, channels: u32) -> DeviceResult<Self> {
         let label = format!("usb-hid:{}", serial.unwrap_or("16c0:05df"));
-        let (transport, info) =
-            HidapiTransport::open(serial).map_err(|reason| DeviceError::PortUnavailable {
-                device: device.to_string(),
-                port: label.clone(),
-                reason,
-            })?;
+        let (transport, info) = HidapiTransport::open(serial).map_err(|reason| {
+            DeviceError::new(
+                device.to_string(),
+                DeviceErrorKind::PortUnavailable {
+                    port: label.clone(),
+                    reason,
+                },
+            )
+        })?;
         if let Some(n) = info.channels.filter(|&n| n != channels) {
             tracing::warn!(device, path = %info.path, "the board says it has {n} relays, the rig file {channels}");
         }
@@ -252,12 +255,14 @@ impl HidRelayBank {
         opener: Option<HidOpener>,
     ) -> DeviceResult<Self> {
         if channels == 0 || channels > MAX_CHANNELS {
-            return Err(DeviceError::Other {
-                device: device.to_string(),
-                message: format!(
-                    "a USB HID relay board has 1 to {MAX_CHANNELS} channels, the rig file says {channels}"
-                ),
-            });
+            return Err(DeviceError::new(
+                device.to_string(),
+                DeviceErrorKind::Other {
+                    message: format!(
+                        "a USB HID relay board has 1 to {MAX_CHANNELS} channels, the rig file says {channels}"
+                    ),
+                },
+            ));
         }
         let (jobs, rx) = mpsc::channel::<Job>();
         let mut worker = Worker {
@@ -276,9 +281,13 @@ impl HidRelayBank {
                     let _ = reply.send(worker.handle(req));
                 }
             })
-            .map_err(|e| DeviceError::Other {
-                device: device.to_string(),
-                message: format!("cannot start the USB HID thread: {e}"),
+            .map_err(|e| {
+                DeviceError::new(
+                    device.to_string(),
+                    DeviceErrorKind::Other {
+                        message: format!("cannot start the USB HID thread: {e}"),
+                    },
+                )
             })?;
         Ok(Self {
             device: device.to_string(),
@@ -288,19 +297,19 @@ impl HidRelayBank {
     }
 
     async fn request(&self, req: Request, what: &str) -> DeviceResult<Vec<bool>> {
-        let gone = || DeviceError::Gone {
-            device: self.device.clone(),
-        };
+        let gone = || DeviceError::new(self.device.clone(), DeviceErrorKind::Gone);
         let (reply, rx) = oneshot::channel();
         self.jobs.send((req, reply)).map_err(|_| gone())?;
         match tokio::time::timeout(duration_s(REQUEST_TIMEOUT_S), rx).await {
             Ok(Ok(r)) => r,
             Ok(Err(_)) => Err(gone()),
-            Err(_) => Err(DeviceError::Timeout {
-                device: self.device.clone(),
-                request: what.to_string(),
-                timeout_s: REQUEST_TIMEOUT_S,
-            }),
+            Err(_) => Err(DeviceError::new(
+                self.device.clone(),
+                DeviceErrorKind::Timeout {
+                    request: what.to_string(),
+                    timeout_s: REQUEST_TIMEOUT_S,
+                },
+            )),
         }
     }
 }
@@ -308,11 +317,13 @@ impl HidRelayBank {
 impl SwitchBankDriver for HidRelayBank {
     async fn set(&mut self, channel: u32, on: bool) -> DeviceResult<()> {
         if channel == 0 || channel > self.channels {
-            return Err(DeviceError::NoSuchChannel {
-                device: self.device.clone(),
-                channel,
-                channels: self.channels,
-            });
+            return Err(DeviceError::new(
+                self.device.clone(),
+                DeviceErrorKind::NoSuchChannel {
+                    channel,
+                    channels: self.channels,
+                },
+            ));
         }
         let what = format!("relay {channel} {}", if on { "on" } else { "off" });
         self.request(Request::Set(channel, on), &what)
@@ -340,13 +351,18 @@ struct Worker {
 impl Worker {
     fn handle(&mut self, req: Request) -> DeviceResult<Vec<bool>> {
         if self.transport.is_none() {
-            let opener = self.opener.as_mut().ok_or_else(|| DeviceError::Gone {
-                device: self.device.clone(),
-            })?;
-            let t = opener().map_err(|reason| DeviceError::PortUnavailable {
-                device: self.device.clone(),
-                port: self.port.clone(),
-                reason,
+            let opener = self
+                .opener
+                .as_mut()
+                .ok_or_else(|| DeviceError::new(self.device.clone(), DeviceErrorKind::Gone))?;
+            let t = opener().map_err(|reason| {
+                DeviceError::new(
+                    self.device.clone(),
+                    DeviceErrorKind::PortUnavailable {
+                        port: self.port.clone(),
+                        reason,
+                    },
+                )
             })?;
             self.transport = Some(t);
         }
@@ -365,7 +381,11 @@ impl Worker {
             }
             Request::Read => Ok(self.state()?.channels(self.channels)),
         });
-        if let Err(DeviceError::Disconnected { .. }) = &r {
+        if let Err(DeviceError {
+            kind: DeviceErrorKind::Disconnected { .. },
+            ..
+        }) = &r
+        {
             self.failed = true;
             if self.opener.is_some() {
                 self.transport = None;
@@ -417,20 +437,24 @@ impl Worker {
     fn transport(&mut self) -> DeviceResult<&mut (dyn HidTransport + Send)> {
         match self.transport.as_deref_mut() {
             Some(t) => Ok(t),
-            None => Err(DeviceError::Disconnected {
-                device: self.device.clone(),
-                port: self.port.clone(),
-                reason: "the board is not open".into(),
-            }),
+            None => Err(DeviceError::new(
+                self.device.clone(),
+                DeviceErrorKind::Disconnected {
+                    port: self.port.clone(),
+                    reason: "the board is not open".into(),
+                },
+            )),
         }
     }
 
     fn lost(&self, e: impl std::fmt::Display) -> DeviceError {
-        DeviceError::Disconnected {
-            device: self.device.clone(),
-            port: self.port.clone(),
-            reason: e.to_string(),
-        }
+        DeviceError::new(
+            self.device.clone(),
+            DeviceErrorKind::Disconnected {
+                port: self.port.clone(),
+                reason: e.to_string(),
+            },
+        )
     }
 
     fn send(&mut self, cmd: HidCommand) -> DeviceResult<()> {
@@ -452,10 +476,12 @@ impl Worker {
     }
 
     fn protocol(&self, message: String) -> DeviceError {
-        DeviceError::Protocol {
-            device: self.device.clone(),
-            port: self.port.clone(),
-            message,
-        }
+        DeviceError::new(
+            self.device.clone(),
+            DeviceErrorKind::Protocol {
+                port: self.port.clone(),
+                message,
+            },
+        )
     }
 }

@@ -10,7 +10,7 @@ use tokio::time::Instant;
 use super::power_functions::{self, Output, PfWord, Pwm};
 use crate::cart::{CartDriver, Drive};
 use crate::clock::duration_s;
-use crate::error::{DeviceError, DeviceResult};
+use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::rig::{CartSpec, IR_BRIDGE_BAUD};
 use crate::serial_link::SerialLink;
 
@@ -76,9 +76,8 @@ impl IrBridgeCart {
         output: Output,
         step: u8,
     ) -> DeviceResult<Self> {
-        let bad = |message: String| DeviceError::Other {
-            device: device.to_string(),
-            message,
+        let bad = |message: String| {
+            DeviceError::new(device.to_string(), DeviceErrorKind::Other { message })
         };
         if !(1..=4).contains(&channel) {
             return Err(bad(format!(
@@ -104,10 +103,8 @@ impl IrBridgeCart {
 
     /// The cart of an `ir-bridge` cart spec (port, baud default 9600, channel, output, step).
     pub fn from_spec(spec: &CartSpec) -> DeviceResult<Self> {
-        let bad = |message: String| DeviceError::Other {
-            device: spec.id.clone(),
-            message,
-        };
+        let bad =
+            |message: String| DeviceError::new(spec.id.clone(), DeviceErrorKind::Other { message });
         let port = spec.port.as_deref().ok_or_else(|| {
             bad("an ir-bridge cart needs `port = \"/dev/serial/by-id/...\"` in the rig file".into())
         })?;
@@ -128,10 +125,10 @@ impl IrBridgeCart {
     }
 
     fn end_stop(&self, end: End) -> DeviceError {
-        DeviceError::EndStop {
-            device: self.link.device().to_string(),
-            end: end.name(),
-        }
+        DeviceError::new(
+            self.link.device().to_string(),
+            DeviceErrorKind::EndStop { end: end.name() },
+        )
     }
 
     fn note_end(&mut self, end: End) {
@@ -177,7 +174,10 @@ impl IrBridgeCart {
                         Some(end) => self.note_end(end),
                         None => other = Some(line),
                     },
-                    Err(DeviceError::Timeout { .. }) => break,
+                    Err(DeviceError {
+                        kind: DeviceErrorKind::Timeout { .. },
+                        ..
+                    }) => break,
                     Err(e) => return self.fail(e),
                 }
             }
@@ -187,11 +187,7 @@ impl IrBridgeCart {
                 "`ver` answered `{}`, expected `IRBRIDGE x.y`; is this the IR bridge at the right baud rate?",
                 line.escape_debug()
             )),
-            None => DeviceError::Timeout {
-                device: self.link.device().to_string(),
-                request: "ver".into(),
-                timeout_s: HANDSHAKE_S,
-            },
+            None => DeviceError::new(self.link.device().to_string(), DeviceErrorKind::Timeout { request: "ver".into(), timeout_s: HANDSHAKE_S }),
         };
         self.fail(e)
     }
@@ -207,7 +203,10 @@ impl IrBridgeCart {
                         tracing::debug!(device = %self.link.device(), line = %line, "ignoring a stray line from the IR bridge")
                     }
                 },
-                Err(DeviceError::Timeout { .. }) => break,
+                Err(DeviceError {
+                    kind: DeviceErrorKind::Timeout { .. },
+                    ..
+                }) => break,
                 Err(e) => return Err(e),
             }
         }
@@ -219,10 +218,12 @@ impl IrBridgeCart {
     async fn send(&mut self, pwm: Pwm, towards: Option<End>) -> DeviceResult<()> {
         self.toggle = !self.toggle;
         let Some(word) = PfWord::single_output(self.channel, self.output, pwm, self.toggle) else {
-            return Err(DeviceError::Other {
-                device: self.link.device().to_string(),
-                message: format!("cannot encode {pwm:?} on channel {}", self.channel),
-            });
+            return Err(DeviceError::new(
+                self.link.device().to_string(),
+                DeviceErrorKind::Other {
+                    message: format!("cannot encode {pwm:?} on channel {}", self.channel),
+                },
+            ));
         };
         let hex = power_functions::to_hex(word.encode());
         let request = format!("PF {hex}");

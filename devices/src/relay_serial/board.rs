@@ -16,7 +16,7 @@ use tokio::time::Instant;
 
 use super::codec::{self, Command, MAX_INDEX};
 use crate::clock::duration_s;
-use crate::error::{DeviceError, DeviceResult};
+use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::rig::{RELAY_SERIAL_BAUD, SwitchBankSpec};
 use crate::serial_link::SerialLink;
 use crate::switch_bank::SwitchBankDriver;
@@ -80,11 +80,8 @@ impl NumatoBoard {
 
     /// The board of a `relay-serial` switch bank: its port, baud (default 19200) and watchdog.
     pub fn from_spec(spec: &SwitchBankSpec) -> DeviceResult<Arc<Self>> {
-        let port = spec.port.as_deref().ok_or_else(|| DeviceError::Other {
-            device: spec.id.clone(),
-            message: "a relay-serial bank needs `port = \"/dev/serial/by-id/...\"` in the rig file"
-                .into(),
-        })?;
+        let port = spec.port.as_deref().ok_or_else(|| DeviceError::new(spec.id.clone(), DeviceErrorKind::Other { message: "a relay-serial bank needs `port = \"/dev/serial/by-id/...\"` in the rig file"
+                .into() }))?;
         Ok(Self::new(
             &spec.id,
             port,
@@ -193,11 +190,13 @@ impl NumatoBoard {
     }
 
     fn protocol(&self, message: String) -> DeviceError {
-        DeviceError::Protocol {
-            device: self.device.clone(),
-            port: self.port.clone(),
-            message,
-        }
+        DeviceError::new(
+            self.device.clone(),
+            DeviceErrorKind::Protocol {
+                port: self.port.clone(),
+                message,
+            },
+        )
     }
 
     async fn lock(&self) -> MutexGuard<'_, Inner> {
@@ -251,7 +250,11 @@ impl NumatoBoard {
             .read_until(&[codec::PROMPT], "\\r", FLUSH_TIMEOUT_S)
             .await
         {
-            Ok(_) | Err(DeviceError::Timeout { .. }) => {}
+            Ok(_)
+            | Err(DeviceError {
+                kind: DeviceErrorKind::Timeout { .. },
+                ..
+            }) => {}
             Err(e) => return Err(e),
         }
         link.discard_input();
@@ -383,9 +386,11 @@ impl NumatoBoard {
 
 /// One command and its answer up to the prompt, on an open link.
 async fn transact(link: &mut SerialLink, cmd: Command) -> DeviceResult<Option<String>> {
-    let text = cmd.text().map_err(|m| DeviceError::Other {
-        device: link.device().to_string(),
-        message: m,
+    let text = cmd.text().map_err(|m| {
+        DeviceError::new(
+            link.device().to_string(),
+            DeviceErrorKind::Other { message: m },
+        )
     })?;
     let mut bytes = text.clone().into_bytes();
     bytes.push(codec::COMMAND_END);
@@ -407,12 +412,14 @@ impl RelaySerialBank {
     /// A bank of `channels` relays (1 to 32) on `board`.
     pub fn new(board: Arc<NumatoBoard>, channels: u32) -> DeviceResult<Self> {
         if channels == 0 || channels > RELAYS as u32 {
-            return Err(DeviceError::Other {
-                device: board.device().to_string(),
-                message: format!(
-                    "a relay-serial board has 1 to {RELAYS} channels, the rig file says {channels}"
-                ),
-            });
+            return Err(DeviceError::new(
+                board.device().to_string(),
+                DeviceErrorKind::Other {
+                    message: format!(
+                        "a relay-serial board has 1 to {RELAYS} channels, the rig file says {channels}"
+                    ),
+                },
+            ));
         }
         Ok(Self { board, channels })
     }
@@ -426,11 +433,13 @@ impl RelaySerialBank {
 impl SwitchBankDriver for RelaySerialBank {
     async fn set(&mut self, channel: u32, on: bool) -> DeviceResult<()> {
         if channel == 0 || channel > self.channels {
-            return Err(DeviceError::NoSuchChannel {
-                device: self.board.device().to_string(),
-                channel,
-                channels: self.channels,
-            });
+            return Err(DeviceError::new(
+                self.board.device().to_string(),
+                DeviceErrorKind::NoSuchChannel {
+                    channel,
+                    channels: self.channels,
+                },
+            ));
         }
         self.board.set_relay(channel - 1, on).await
     }

@@ -4,11 +4,11 @@
 
 use std::sync::Arc;
 
-use stagehand_devices::DeviceError;
 use stagehand_devices::axis::{AxisDriver, leg};
 use stagehand_devices::error::DeviceResult;
 use stagehand_devices::motion::Trapezoid;
 use stagehand_devices::rig::AxisSpec;
+use stagehand_devices::{DeviceError, DeviceErrorKind};
 
 use super::COMMAND_LATENCY_S;
 use crate::world::World;
@@ -88,7 +88,7 @@ impl AxisDriver for SimAxis {
         let id = self.spec.id.clone();
         let homed = self.world.with_axis(&id, |a| a.homed).unwrap_or(false);
         if !homed {
-            return Err(DeviceError::NotHomed { device: id });
+            return Err(DeviceError::new(id, DeviceErrorKind::NotHomed));
         }
         self.world.clock().sleep_s(COMMAND_LATENCY_S).await;
         let now = self.now();
@@ -96,7 +96,7 @@ impl AxisDriver for SimAxis {
             self.world.violation(format!(
                 "axis `{id}` was commanded to move during an exposure at rig time {now:.3} s"
             ));
-            return Err(DeviceError::MovingWhileExposing { device: id });
+            return Err(DeviceError::new(id, DeviceErrorKind::MovingWhileExposing));
         }
         let from = self.current();
         let target = self.quantise(target_deg);
@@ -109,10 +109,10 @@ impl AxisDriver for SimAxis {
             let at = target.clamp(lo, hi);
             self.run(leg(&self.spec, from, at)).await;
             self.world.with_axis(&id, |a| a.homed = false);
-            return Err(DeviceError::HardLimit {
-                device: id,
-                position_deg: at,
-            });
+            return Err(DeviceError::new(
+                id,
+                DeviceErrorKind::HardLimit { position_deg: at },
+            ));
         }
         self.run(leg(&self.spec, from, target)).await;
         Ok(target)

@@ -3,13 +3,13 @@
 
 use std::sync::Arc;
 
-use stagehand_devices::DeviceError;
 use stagehand_devices::camera::CameraDriver;
 use stagehand_devices::compute_time::ComputeTime;
 use stagehand_devices::error::DeviceResult;
 use stagehand_devices::frame::Frame;
 use stagehand_devices::ground_truth::GroundTruthData;
 use stagehand_devices::rig::CameraSpec;
+use stagehand_devices::{DeviceError, DeviceErrorKind};
 use tokio::sync::broadcast;
 
 use crate::world::{Pulse, World};
@@ -67,9 +67,13 @@ impl SimCamera {
             .world
             .renderer()
             .ground_truth(snapshot, &self.spec.id)
-            .map_err(|e| DeviceError::Other {
-                device: self.spec.id.clone(),
-                message: format!("ground truth: {e}"),
+            .map_err(|e| {
+                DeviceError::new(
+                    self.spec.id.clone(),
+                    DeviceErrorKind::Other {
+                        message: format!("ground truth: {e}"),
+                    },
+                )
             })?;
         let data = Arc::new(data.into_data());
         self.ground_truth = Some((key, Arc::clone(&data)));
@@ -125,18 +129,20 @@ impl CameraDriver for SimCamera {
         let rx = self
             .armed
             .as_mut()
-            .ok_or_else(|| DeviceError::NotArmed { device: id.clone() })?;
+            .ok_or_else(|| DeviceError::new(id.clone(), DeviceErrorKind::NotArmed))?;
         let pulse = loop {
             let pulse = match rx.recv().await {
                 Ok(p) => p,
                 Err(broadcast::error::RecvError::Lagged(n)) => {
-                    return Err(DeviceError::Other {
-                        device: id,
-                        message: format!("missed {n} trigger pulses; the camera was too slow"),
-                    });
+                    return Err(DeviceError::new(
+                        id,
+                        DeviceErrorKind::Other {
+                            message: format!("missed {n} trigger pulses; the camera was too slow"),
+                        },
+                    ));
                 }
                 Err(broadcast::error::RecvError::Closed) => {
-                    return Err(DeviceError::Gone { device: id });
+                    return Err(DeviceError::new(id, DeviceErrorKind::Gone));
                 }
             };
             // A stalled camera (fault injection) swallows the pulse and delivers nothing.
@@ -168,9 +174,13 @@ impl CameraDriver for SimCamera {
                         self.gain,
                         self.noise_seed(trigger_id),
                     )
-                    .map_err(|e| DeviceError::Other {
-                        device: id.clone(),
-                        message: e.to_string(),
+                    .map_err(|e| {
+                        DeviceError::new(
+                            id.clone(),
+                            DeviceErrorKind::Other {
+                                message: e.to_string(),
+                            },
+                        )
                     })?;
                 Ok::<_, DeviceError>((rendered, self.ground_truth(&snapshot)?))
             })
