@@ -8,11 +8,11 @@
 pub mod axis;
 pub mod codec;
 pub mod codes;
-pub mod controller;
+pub mod conn;
 pub mod flow;
 pub mod laser;
 pub mod settings;
 
 pub use axis::GrblAxis;
-pub use controller::GrblController;
+pub use conn::GrblController;
 pub use laser::GrblLaser;
