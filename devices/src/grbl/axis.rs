@@ -3,7 +3,7 @@
 
 use std::sync::Arc;
 
-use super::conn::{GrblController, letter_of};
+use super::controller::{GrblController, letter_of};
 use crate::axis::AxisDriver;
 use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::rig::AxisSpec;

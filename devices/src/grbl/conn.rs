@@ -1,37 +1,13 @@
-//! The connection to one GRBL 1.1 controller, shared by every axis (and the laser) that names
-//! its port.
+//! The state of one GRBL connection ([`Conn`]), guarded by [`GrblController`]'s mutex: the
+//! serial link, the handshake (banner, `$$`, `$I`), every reply absorbed into the known state
+//! (lines matched to `ok`/`error` by the flow counter, status reports, alarms, resets), and the
+//! single exchanges the controller is built from (send a line, poll a status, wait for a
+//! move, reset). See the module docs of [`super::controller`] for the recovery rules.
 //!
-//! The connection is a [`SerialLink`] behind an async mutex that is taken per exchange (one
-//! line and its `ok`, one `?` and its report), never for a whole move, so a second axis can
-//! queue its move while the first one moves, and a keepalive can poll while everyone waits.
-//! Every line received is absorbed into the known state (replies matched to lines by the flow
-//! counter, the last status, alarms, resets), whoever happens to read it.
-//!
-//! **Homing is exclusive.** Real GRBL answers nothing (not even `?`) during a homing cycle, so
-//! a homing cycle holds the activity lock for writing: other requests wait for it, the
-//! keepalive skips, and only one homing command is ever in flight. A stock build homes with
-//! `$H` (every axis, in the firmware's cycles); a build with single-axis homing (`$I` option
-//! `H`) homes one axis with `$HX`. Silence is bounded by a timeout derived from `$13x`,
-//! `$24`, `$25` and `$27`.
-//!
-//! **Machine coordinates.** Moves are `G53 G0` to machine coordinates, so work offsets on the
-//! board do not matter; `WPos` reports are turned into machine positions with the last `WCO`.
-//! Rig degrees map onto machine coordinates through the rig file's `home_deg` and
-//! `machine_sign` ([`MachineMap`]); settings that cannot work for the rig are refused at
-//! connect ([`settings::problems`]).
-//!
-//! **No frame at an unverified position.** The controller's position is trusted only after the
-//! axis was homed on the current connection. Connecting (the first use, and every reconnect
-//! after a lost link, a timeout or garbage) soft-resets the controller and marks every axis not
-//! homed, so a move fails with `NotHomed` until the axis is homed again; so do an `ALARM:N`, a
-//! status in state `Alarm` and a reset we did not ask for. Our own stop (feed hold, then reset
-//! in `Hold:0`) keeps the position, as GRBL does.
+//! [`GrblController`]: super::controller::GrblController
 
 use std::collections::BTreeMap;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Weak};
 
-use tokio::sync::{Mutex, MutexGuard, RwLock};
 use tokio::time::Instant;
 
 use super::codec::{Command, PosKind, Realtime, Reply, State, Status, axis_index, parse_line};
@@ -40,12 +16,9 @@ use super::flow::Flow;
 use super::settings::{self, BuildInfo, MachineMap, Settings};
 use crate::clock::duration_s;
 use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
-use crate::motion::move_duration_s;
 use crate::rig::AxisSpec;
 use crate::serial_link::SerialLink;
 
-/// How far a move's deadline is pushed out each time the controller is seen moving.
-const MOVE_PROGRESS_S: f64 = 5.0;
 /// Wait for the banner after a soft reset.
 const BANNER_TIMEOUT_S: f64 = 2.0;
 /// Quiet time that ends the messages following a banner (`[MSG:...]`, `ALARM:3`).
@@ -55,577 +28,17 @@ const REPLY_TIMEOUT_S: f64 = 1.0;
 /// Wait for a write to the port.
 const WRITE_TIMEOUT_S: f64 = 1.0;
 /// Longest single read while waiting, so the lock is released regularly.
-const SLICE_S: f64 = 0.05;
-/// Interval of status polls while a move or a feed hold runs (GRBL's documentation asks for
-/// no more than 5–10 Hz); concurrent waits share a report this fresh.
-const POLL_S: f64 = 0.1;
-/// Polls in a row reporting Idle away from the target before a move is declared lost.
-const IDLE_AWAY_POLLS: u32 = 10;
+pub(super) const SLICE_S: f64 = 0.05;
 /// A `?` unanswered this long is sent again (a byte lost on the line, a reset meanwhile).
 const RESEND_S: f64 = 0.25;
-/// Keepalive period: notices a dead port while nobody talks.
-const KEEPALIVE_S: f64 = 0.5;
-/// Status reports to wait for one carrying `Ov:` (GRBL sends it at least every 20).
-const OV_REPORTS: u32 = 25;
 /// Replies kept for lines whose sender gave up waiting (cancelled futures).
 const DONE_KEPT: u64 = 64;
 /// Line ends of GRBL output (`\r\n`; either alone is accepted).
 const EOL: &[u8] = b"\r\n";
 
-/// One GRBL controller on one port; see the module docs for the recovery rules.
-pub struct GrblController {
-    label: String,
-    port: String,
-    /// Ids of the configured axes and their letters (fixed at construction).
-    axes: Vec<(char, String)>,
-    conn: Mutex<Conn>,
-    /// Read-held by every request, write-held by a homing cycle (see the module docs).
-    activity: RwLock<()>,
-    /// A homing line is in flight: a stop must reset instead of polling.
-    homing_now: AtomicBool,
-    /// A laser is switched by this controller's spindle output (checked against `$32`).
-    has_laser: AtomicBool,
-    keepalive_enabled: AtomicBool,
-    keepalive_started: AtomicBool,
-    me: Weak<GrblController>,
-}
-
-/// Clears [`GrblController::homing_now`] however the homing future ends.
-struct HomingFlag<'a>(&'a AtomicBool);
-
-impl Drop for HomingFlag<'_> {
-    fn drop(&mut self) {
-        self.0.store(false, Ordering::SeqCst);
-    }
-}
-
-impl GrblController {
-    /// A controller on `port` at `baud` serving `axes` (the axes that name this port; their
-    /// `controller_axis` letter and `steps_per_deg` are checked against `$100..$102` on
-    /// connect). `device_label` names the controller in errors that concern no single axis.
-    /// Nothing is opened until the first request.
-    pub fn new(device_label: &str, port: &str, baud: u32, axes: Vec<AxisSpec>) -> Arc<Self> {
-        let axes: Vec<(char, AxisSpec)> = axes
-            .into_iter()
-            .filter_map(|a| Some((letter_of(&a)?, a)))
-            .collect();
-        Arc::new_cyclic(|me| GrblController {
-            label: device_label.to_string(),
-            port: port.to_string(),
-            axes: axes.iter().map(|(l, a)| (*l, a.id.clone())).collect(),
-            conn: Mutex::new(Conn::new(device_label, port, baud, axes)),
-            activity: RwLock::new(()),
-            homing_now: AtomicBool::new(false),
-            has_laser: AtomicBool::new(false),
-            keepalive_enabled: AtomicBool::new(true),
-            keepalive_started: AtomicBool::new(false),
-            me: me.clone(),
-        })
-    }
-
-    /// Name of the controller in errors.
-    pub fn label(&self) -> &str {
-        &self.label
-    }
-
-    /// Path of the serial port.
-    pub fn port(&self) -> &str {
-        &self.port
-    }
-
-    /// Records that a laser is switched by the spindle output, so laser mode (`$32=1`, which
-    /// keeps the output off while idle) is refused at connect.
-    pub fn attach_laser(&self) {
-        self.has_laser.store(true, Ordering::Relaxed);
-    }
-
-    /// Switches the idle keepalive (`?` every 0.5 s while nobody talks) on or off; it is on by
-    /// default. Off only for tests that record the exact byte stream.
-    pub fn set_keepalive(&self, on: bool) {
-        self.keepalive_enabled.store(on, Ordering::Relaxed);
-    }
-
-    /// True if the axis with `letter` was homed on the current connection.
-    pub async fn is_homed(&self, letter: char) -> bool {
-        let c = self.conn.lock().await;
-        axis_index(letter).is_some_and(|i| c.ready() && c.homed[i] && !c.in_alarm)
-    }
-
-    /// Connects (soft reset, banner, `$I`, `$$` and the rig checks) and returns the board's
-    /// build info; a board whose settings cannot work for the rig is `Misconfigured`.
-    pub async fn connect(&self) -> DeviceResult<BuildInfo> {
-        let _busy = self.activity.read().await;
-        let c = self.ready_conn().await?;
-        Ok(c.build.clone())
-    }
-
-    /// The board's build info (`$I`) as read at the last connect.
-    pub async fn build_info(&self) -> BuildInfo {
-        self.conn.lock().await.build.clone()
-    }
-
-    /// True if `spec` is one of the axes this controller was built with, under its letter.
-    pub(crate) fn serves(&self, spec: &AxisSpec, letter: char) -> bool {
-        self.axes
-            .iter()
-            .any(|(l, id)| *l == letter && *id == spec.id)
-    }
-
-    /// Reads the status report (`?`), connecting first if needed. Positions are machine
-    /// coordinates.
-    pub async fn status(&self, device: &str) -> DeviceResult<Status> {
-        let r = async {
-            let _busy = self.activity.read().await;
-            let mut c = self.ready_conn().await?;
-            c.query_status().await
-        }
-        .await;
-        r.map_err(|e| named(e, device))
-    }
-
-    /// The rig angle of axis `letter`, read from a fresh status report.
-    pub async fn position_deg(&self, device: &str, letter: char) -> DeviceResult<f64> {
-        let r = async {
-            let idx = index(letter, &self.label)?;
-            let _busy = self.activity.read().await;
-            let mut c = self.ready_conn().await?;
-            let s = c.query_status().await?;
-            Ok(c.to_deg(idx, s.pos[idx]))
-        }
-        .await;
-        r.map_err(|e| named(e, device))
-    }
-
-    /// Sends one command line and waits for its `ok` (an `error:N` is `Rejected`).
-    pub async fn command(&self, device: &str, cmd: Command, timeout_s: f64) -> DeviceResult<()> {
-        let r = async {
-            let _busy = self.activity.read().await;
-            self.command_inner(&cmd, timeout_s).await
-        }
-        .await;
-        r.map_err(|e| named(e, device))
-    }
-
-    async fn command_inner(&self, cmd: &Command, timeout_s: f64) -> DeviceResult<()> {
-        let deadline = Instant::now() + duration_s(timeout_s);
-        let (seq, epoch, alarms) = {
-            let mut c = self.ready_conn().await?;
-            let seq = c.send_line(cmd, deadline, timeout_s).await?;
-            (seq, c.resets, c.alarm_events)
-        };
-        self.wait_reply(seq, epoch, alarms, cmd, deadline, timeout_s)
-            .await
-    }
-
-    /// Switches the spindle output (the laser) with `M3 S<power>` or `M5`, then confirms the
-    /// output state from the status reports (`A:S` with `Ov:`, and the `FS:` spindle speed):
-    /// a laser that does not follow is [`DeviceErrorKind::LaserNotSwitched`].
-    pub async fn switch_spindle(
-        &self,
-        device: &str,
-        on: bool,
-        power: u32,
-        timeout_s: f64,
-    ) -> DeviceResult<()> {
-        let r = async {
-            let _busy = self.activity.read().await;
-            let cmd = if on {
-                Command::LaserOn { power }
-            } else {
-                Command::LaserOff
-            };
-            self.command_inner(&cmd, timeout_s).await?;
-            let mut c = self.ready_conn().await?;
-            let seen = c.ov_reports;
-            for _ in 0..OV_REPORTS {
-                let s = c.query_status().await?;
-                if c.ov_reports == seen {
-                    continue;
-                }
-                let output = c.spindle_on.unwrap_or(false);
-                let speed = s.spindle_speed.unwrap_or(if output { 1.0 } else { 0.0 });
-                if output == on && (speed > 0.0) == on {
-                    return Ok(());
-                }
-                let wanted = if on { "on" } else { "off" };
-                return Err(DeviceError::new(device.to_string(), DeviceErrorKind::LaserNotSwitched { wanted, reason: format!(
-                        "after `{}` the controller on {} reports the spindle output {} at speed {speed}",
-                        cmd.line(),
-                        self.port,
-                        if output { "on (A:S)" } else { "off" },
-                    ) }));
-            }
-            Err(c.link.protocol(format!(
-                "no status report with `Ov:` in {OV_REPORTS} reports after `{}`, so the laser output cannot be verified",
-                cmd.line()
-            )))
-        }
-        .await;
-        r.map_err(|e| named(e, device))
-    }
-
-    /// Homes the axis `letter` and returns its rig angle afterwards (`home_deg`). A build with
-    /// single-axis homing homes only this axis (`$HX`); a stock build homes every axis (`$H`).
-    /// An axis homed on this connection and not moved since is already home: nothing is sent.
-    pub async fn home(&self, device: &str, letter: char) -> DeviceResult<f64> {
-        let r = async {
-            let idx = index(letter, &self.label)?;
-            let _exclusive = self.activity.write().await;
-            let mut c = self.ready_conn().await?;
-            if c.homed[idx] && !c.in_alarm && !c.moved_since_home[idx] {
-                let s = c.query_status().await?;
-                return Ok(c.to_deg(idx, s.pos[idx]));
-            }
-            let single = c.build.single_axis_homing();
-            let mask = if single {
-                let mut m = [false; 3];
-                m[idx] = true;
-                m
-            } else {
-                [true; 3]
-            };
-            let cmd = Command::Home(single.then_some(letter));
-            let timeout_s = c.settings.homing_bound_s(mask);
-            let deadline = Instant::now() + duration_s(timeout_s);
-            self.homing_now.store(true, Ordering::SeqCst);
-            let _flag = HomingFlag(&self.homing_now);
-            let seq = c.send_line(&cmd, deadline, timeout_s).await?;
-            let (epoch, alarms) = (c.resets, c.alarm_events);
-            drop(c);
-            let r = self
-                .wait_reply(seq, epoch, alarms, &cmd, deadline, timeout_s)
-                .await;
-            drop(_flag);
-            let mut c = self.conn.lock().await;
-            let r = r.and_then(|()| c.check_continuity(epoch, alarms, &cmd));
-            if let Err(e) = r {
-                return Err(homing_error(e, &cmd, mask, &self.port));
-            }
-            for (i, on) in mask.iter().enumerate() {
-                if *on {
-                    c.homed[i] = true;
-                    c.moved_since_home[i] = false;
-                }
-            }
-            c.in_alarm = false;
-            c.motion_end = None;
-            let s = c.query_status().await?;
-            if s.state == State::Alarm {
-                return Err(c.other(format!(
-                    "still in Alarm after `{}`; check the homing switch of axis {letter} and `$22=1`",
-                    cmd.line()
-                )));
-            }
-            Ok(c.to_deg(idx, s.pos[idx]))
-        }
-        .await;
-        r.map_err(|e| named(e, device))
-    }
-
-    /// Moves axis `letter` of `spec` to `target_deg` (`G53 G0` to its machine coordinate),
-    /// waits until the controller reports Idle at the target, and returns the angle reached.
-    /// Fails with `NotHomed` unless the axis was homed on this connection.
-    pub async fn move_axis(
-        &self,
-        device: &str,
-        spec: &AxisSpec,
-        letter: char,
-        target_deg: f64,
-    ) -> DeviceResult<f64> {
-        let r = async {
-            let _busy = self.activity.read().await;
-            self.move_inner(device, spec, letter, target_deg).await
-        }
-        .await;
-        r.map_err(|e| named(e, device))
-    }
-
-    /// The error for an alarm raised while a move of axis `idx` was under way: `HardLimit`
-    /// with the position for ALARM:1, `Alarm` otherwise.
-    async fn alarm_during_move(&self, idx: usize, e: DeviceError) -> DeviceError {
-        if !matches!(
-            e,
-            DeviceError {
-                kind: DeviceErrorKind::Alarm { code: 1, .. },
-                ..
-            }
-        ) {
-            return e;
-        }
-        let mut c = self.conn.lock().await;
-        // A hard limit is critical: GRBL answers no `?` until a reset, so the last report tells.
-        let fresh = if c.critical {
-            None
-        } else {
-            c.query_status().await.ok()
-        };
-        let pos = fresh.or(c.last_status).map(|s| c.to_deg(idx, s.pos[idx]));
-        c.alarm_error(pos)
-    }
-
-    async fn move_inner(
-        &self,
-        device: &str,
-        spec: &AxisSpec,
-        letter: char,
-        target_deg: f64,
-    ) -> DeviceResult<f64> {
-        let idx = index(letter, &self.label)?;
-        if !target_deg.is_finite() {
-            return Err(DeviceError::new(
-                device.to_string(),
-                DeviceErrorKind::Other {
-                    message: format!("target {target_deg} is not a number"),
-                },
-            ));
-        }
-        // One and a half microsteps, plus the rounding of the 3-decimal report.
-        let tolerance = 1.5 / spec.steps_per_deg.max(1e-9) + 0.0005;
-        let (cmd, sent, seq, epoch, alarms, deadline, timeout_s) = {
-            let mut c = self.ready_conn().await?;
-            if !c.homed[idx] || c.in_alarm {
-                return Err(DeviceError::new(
-                    device.to_string(),
-                    DeviceErrorKind::NotHomed,
-                ));
-            }
-            let machine = c.to_machine(idx, target_deg);
-            let cmd = Command::Move {
-                axis: letter,
-                machine,
-            };
-            let sent = (machine * 1000.0).round() / 1000.0;
-            let now = Instant::now();
-            let from = c
-                .last_status
-                .map_or(target_deg, |s| c.to_deg(idx, s.pos[idx]));
-            let physics = move_duration_s(from, target_deg, spec.kinematics(), 0.0) * 1.5 + 2.0;
-            // Moves of one controller run one after another: ours starts when the queue ends.
-            let start = c.motion_end.filter(|t| *t > now).unwrap_or(now);
-            let deadline = start + duration_s(physics);
-            c.motion_end = Some(deadline);
-            let timeout_s = (deadline - now).as_secs_f64();
-            c.moved_since_home[idx] = true;
-            let seq = c.send_line(&cmd, deadline, timeout_s).await?;
-            (
-                cmd,
-                sent,
-                seq,
-                c.resets,
-                c.alarm_events,
-                deadline,
-                timeout_s,
-            )
-        };
-        if let Err(e) = self
-            .wait_reply(seq, epoch, alarms, &cmd, deadline, timeout_s)
-            .await
-        {
-            return Err(self.alarm_during_move(idx, e).await);
-        }
-        let mut idle_away = 0;
-        // While the controller is visibly moving (an earlier queued move, ours), the wait is
-        // extended: the deadline guards against a stalled controller, not a busy one. The
-        // axis handle's own timeout (which allows for the other axes) still bounds it.
-        let mut deadline = deadline;
-        let mut last_pos: Option<[f64; 3]> = None;
-        loop {
-            let (s, deg) = {
-                let mut c = self.conn.lock().await;
-                c.check_continuity(epoch, alarms, &cmd)?;
-                let s = c.fresh_status(POLL_S).await?;
-                let deg = c.to_deg(idx, s.pos[idx]);
-                if c.alarm_events != alarms || s.state == State::Alarm {
-                    return Err(c.alarm_error(Some(deg)));
-                }
-                c.check_continuity(epoch, alarms, &cmd)?;
-                (s, deg)
-            };
-            let pos = s.pos[idx];
-            if s.state == State::Run && last_pos.is_some_and(|p| p != s.pos) {
-                deadline =
-                    deadline.max(Instant::now() + duration_s(timeout_s.min(MOVE_PROGRESS_S)));
-            }
-            last_pos = Some(s.pos);
-            if s.state == State::Idle {
-                if (pos - sent).abs() <= tolerance {
-                    return Ok(deg);
-                }
-                idle_away += 1;
-                if idle_away >= IDLE_AWAY_POLLS {
-                    let c = self.conn.lock().await;
-                    return Err(c.link.protocol(format!(
-                        "controller is Idle at machine {letter}{pos:.3} after `{}`; the move was lost",
-                        cmd.line()
-                    )));
-                }
-            } else {
-                idle_away = 0;
-            }
-            if Instant::now() >= deadline {
-                return Err(DeviceError::new(
-                    device.to_string(),
-                    DeviceErrorKind::Timeout {
-                        request: cmd.line(),
-                        timeout_s,
-                    },
-                ));
-            }
-            tokio::time::sleep(duration_s(POLL_S)).await;
-        }
-    }
-
-    /// Stops all motion of the controller and returns the rig angle of `letter`. Nothing
-    /// moving: nothing is sent but `?`. Moving: feed hold, wait until the hold is complete (at
-    /// most `decel_timeout_s`), then soft reset (which empties the planner; the position is
-    /// kept because the reset comes in `Hold:0`). Homing: soft reset at once (GRBL answers
-    /// nothing while it homes; the axes must be homed again).
-    pub async fn stop(
-        &self,
-        device: &str,
-        letter: char,
-        decel_timeout_s: f64,
-    ) -> DeviceResult<f64> {
-        let r = async {
-            let idx = index(letter, &self.label)?;
-            let mut c = self.conn.lock().await;
-            if !c.ready() {
-                // Connecting soft-resets the controller, which stops it as well.
-                drop(c);
-                let mut c = self.ready_conn().await?;
-                let s = c.query_status().await?;
-                return Ok(c.to_deg(idx, s.pos[idx]));
-            }
-            if self.homing_now.load(Ordering::SeqCst) {
-                c.expect_reset = Some(ResetCause::Reconnect);
-                c.send_realtime(Realtime::SoftReset).await?;
-                c.homed = [false; 3];
-                c.await_banner(false).await?;
-                let s = c.query_status().await?;
-                return Ok(c.to_deg(idx, s.pos[idx]));
-            }
-            let now = Instant::now();
-            let queued = c.motion_end.is_some_and(|t| t > now) || c.flow.lines_in_flight() > 0;
-            let s = c.query_status().await?;
-            if s.state == State::Idle && !queued {
-                return Ok(c.to_deg(idx, s.pos[idx]));
-            }
-            c.send_realtime(Realtime::FeedHold).await?;
-            let deadline = Instant::now() + duration_s(decel_timeout_s);
-            let mut last: Option<[f64; 3]> = None;
-            let mut still = 0;
-            loop {
-                let s = c.query_status().await?;
-                // A hold with nothing moving may stay `Hold:1`: standing still for three polls
-                // in a row counts as held (a reset while decelerating would lose the position).
-                still = if matches!(s.state, State::Hold(_)) && last == Some(s.pos) {
-                    still + 1
-                } else {
-                    0
-                };
-                let standing = still >= 3;
-                let held = standing
-                    || matches!(
-                        s.state,
-                        State::Hold(0)
-                            | State::Idle
-                            | State::Alarm
-                            | State::Door(_)
-                            | State::Sleep
-                            | State::Check
-                    );
-                if held || Instant::now() >= deadline {
-                    break;
-                }
-                last = Some(s.pos);
-                tokio::time::sleep(duration_s(POLL_S)).await;
-            }
-            c.soft_reset().await?;
-            let s = c.query_status().await?;
-            Ok(c.to_deg(idx, s.pos[idx]))
-        }
-        .await;
-        r.map_err(|e| named(e, device))
-    }
-
-    /// The connection, connected and handshaken (reconnecting if the link was lost).
-    async fn ready_conn(&self) -> DeviceResult<MutexGuard<'_, Conn>> {
-        let mut c = self.conn.lock().await;
-        if !c.ready() {
-            c.handshake(self.has_laser.load(Ordering::Relaxed)).await?;
-            self.start_keepalive();
-        } else if c.critical {
-            c.reset_after_critical_alarm().await?;
-        }
-        Ok(c)
-    }
-
-    /// Waits for the reply to line `seq`, releasing the lock between reads.
-    async fn wait_reply(
-        &self,
-        seq: u64,
-        epoch: u64,
-        alarms: u64,
-        cmd: &Command,
-        deadline: Instant,
-        timeout_s: f64,
-    ) -> DeviceResult<()> {
-        loop {
-            let mut c = self.conn.lock().await;
-            if let Some(r) = c.done.remove(&seq) {
-                return r.map_err(|code| c.rejected(cmd, code));
-            }
-            c.check_continuity(epoch, alarms, cmd)?;
-            let now = Instant::now();
-            if now >= deadline {
-                return Err(c.deaf(&cmd.line(), timeout_s));
-            }
-            let slice = (deadline - now).as_secs_f64().min(SLICE_S);
-            c.pump(slice, &cmd.line()).await?;
-        }
-    }
-
-    fn start_keepalive(&self) {
-        if self.keepalive_started.swap(true, Ordering::Relaxed) {
-            return;
-        }
-        tokio::spawn(keepalive(self.me.clone()));
-    }
-}
-
-/// Polls `?` every 0.5 s while nobody else talks, so a dead port is noticed (and reconnected on
-/// the next request). GRBL has no watchdog: this keeps no laser lease. Ends when the
-/// controller is dropped.
-async fn keepalive(me: Weak<GrblController>) {
-    loop {
-        tokio::time::sleep(duration_s(KEEPALIVE_S)).await;
-        let Some(ctl) = me.upgrade() else { break };
-        if !ctl.keepalive_enabled.load(Ordering::Relaxed) {
-            continue;
-        }
-        // Never during homing: GRBL answers nothing then, and a `?` would look like a dead port.
-        let Ok(_busy) = ctl.activity.try_read() else {
-            continue;
-        };
-        if ctl.homing_now.load(Ordering::SeqCst) {
-            continue;
-        }
-        let Ok(mut c) = ctl.conn.try_lock() else {
-            continue;
-        };
-        if c.ready()
-            && !c.critical
-            && c.last_io.elapsed().as_secs_f64() >= KEEPALIVE_S * 0.9
-            && let Err(e) = c.query_status().await
-        {
-            tracing::warn!("{}: keepalive failed: {e}", ctl.label);
-        }
-    }
-}
-
 /// Why the controller's state was forgotten.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum ResetCause {
+pub(super) enum ResetCause {
     /// Our stop: feed hold, then 0x18 (position kept).
     Stop,
     /// A (re)connect or a resynchronisation after garbage.
@@ -635,52 +48,52 @@ enum ResetCause {
 }
 
 /// Everything known about the link and the controller, guarded by the controller's mutex.
-struct Conn {
-    link: SerialLink,
-    axes: Vec<(char, AxisSpec)>,
-    flow: Flow,
+pub(super) struct Conn {
+    pub(super) link: SerialLink,
+    pub(super) axes: Vec<(char, AxisSpec)>,
+    pub(super) flow: Flow,
     /// Handshake done on the currently open link.
-    connected: bool,
+    pub(super) connected: bool,
     /// A write was interrupted (its future dropped): the controller may hold half a line.
-    writing: bool,
+    pub(super) writing: bool,
     /// Replies to lines whose sender has not collected them yet: `Err(code)` for `error:N`.
-    done: BTreeMap<u64, Result<(), u32>>,
-    last_status: Option<Status>,
+    pub(super) done: BTreeMap<u64, Result<(), u32>>,
+    pub(super) last_status: Option<Status>,
     /// Status reports received on this connection, and when the last one came.
-    status_reports: u64,
-    last_status_at: Option<Instant>,
-    in_alarm: bool,
+    pub(super) status_reports: u64,
+    pub(super) last_status_at: Option<Instant>,
+    pub(super) in_alarm: bool,
     /// A critical alarm (hard or soft limit, `ALARM:1/2/10`): only a reset is answered.
-    critical: bool,
+    pub(super) critical: bool,
     /// GRBL printed `[MSG:Reset to continue]`: it now listens for the reset.
-    reset_invited: bool,
-    alarm_events: u64,
-    last_alarm: u32,
+    pub(super) reset_invited: bool,
+    pub(super) alarm_events: u64,
+    pub(super) last_alarm: u32,
     /// Counts resets and reconnects: lines and moves queued before one are gone.
-    resets: u64,
+    pub(super) resets: u64,
     /// Why we are about to see a banner (we sent 0x18); `None`: a banner is unexpected.
-    expect_reset: Option<ResetCause>,
+    pub(super) expect_reset: Option<ResetCause>,
     /// Why `resets` last went up.
-    last_reset: ResetCause,
-    homed: [bool; 3],
+    pub(super) last_reset: ResetCause,
+    pub(super) homed: [bool; 3],
     /// Commanded to move since it was homed (so a homing request must really home).
-    moved_since_home: [bool; 3],
-    settings: Settings,
-    build: BuildInfo,
+    pub(super) moved_since_home: [bool; 3],
+    pub(super) settings: Settings,
+    pub(super) build: BuildInfo,
     /// Rig degrees ↔ machine coordinates per controller axis (after the handshake).
-    maps: [Option<MachineMap>; 3],
+    pub(super) maps: [Option<MachineMap>; 3],
     /// Last work coordinate offset reported (`WCO:`), to turn `WPos` into machine positions.
-    wco: [f64; 3],
+    pub(super) wco: [f64; 3],
     /// Status reports seen with `Ov:`, and the spindle output state they carried.
-    ov_reports: u64,
-    spindle_on: Option<bool>,
-    last_io: Instant,
+    pub(super) ov_reports: u64,
+    pub(super) spindle_on: Option<bool>,
+    pub(super) last_io: Instant,
     /// Estimated latest end of the queued motion (moves run one after another).
-    motion_end: Option<Instant>,
+    pub(super) motion_end: Option<Instant>,
 }
 
 impl Conn {
-    fn new(label: &str, port: &str, baud: u32, axes: Vec<(char, AxisSpec)>) -> Self {
+    pub(super) fn new(label: &str, port: &str, baud: u32, axes: Vec<(char, AxisSpec)>) -> Self {
         Self {
             link: SerialLink::new(label, port, baud),
             axes,
@@ -712,14 +125,14 @@ impl Conn {
         }
     }
 
-    fn ready(&self) -> bool {
+    pub(super) fn ready(&self) -> bool {
         self.connected && self.link.is_open() && !self.writing
     }
 
     /// Opens the link, soft-resets the controller, checks the banner, reads `$I` and `$$`,
     /// refuses settings that cannot work for the rig, and reads the status. Every axis is not
     /// homed afterwards.
-    async fn handshake(&mut self, has_laser: bool) -> DeviceResult<()> {
+    pub(super) async fn handshake(&mut self, has_laser: bool) -> DeviceResult<()> {
         self.connected = false;
         self.writing = false;
         self.link.open()?;
@@ -763,7 +176,7 @@ impl Conn {
     }
 
     /// Sends one line during the handshake and waits for its `ok`.
-    async fn exchange(&mut self, cmd: Command) -> DeviceResult<()> {
+    pub(super) async fn exchange(&mut self, cmd: Command) -> DeviceResult<()> {
         let line = cmd.line();
         let deadline = Instant::now() + duration_s(REPLY_TIMEOUT_S);
         let seq = self.send_line(&cmd, deadline, REPLY_TIMEOUT_S).await?;
@@ -779,19 +192,19 @@ impl Conn {
     }
 
     /// Rig angle of machine coordinate `machine` on controller axis `idx`.
-    fn to_deg(&self, idx: usize, machine: f64) -> f64 {
+    pub(super) fn to_deg(&self, idx: usize, machine: f64) -> f64 {
         self.maps[idx].map_or(machine, |m| m.to_deg(machine))
     }
 
     /// Machine coordinate of rig angle `deg` on controller axis `idx`.
-    fn to_machine(&self, idx: usize, deg: f64) -> f64 {
+    pub(super) fn to_machine(&self, idx: usize, deg: f64) -> f64 {
         self.maps[idx].map_or(deg, |m| m.to_machine(deg))
     }
 
     /// After ALARM:1/2/10 GRBL takes nothing but a reset (not even `?`), and only once it has
     /// printed `[MSG:Reset to continue]`: it clears a reset that came earlier. So: wait for
     /// that message (briefly), reset, and reset once more if no banner follows.
-    async fn reset_after_critical_alarm(&mut self) -> DeviceResult<()> {
+    pub(super) async fn reset_after_critical_alarm(&mut self) -> DeviceResult<()> {
         let request = "the `[MSG:Reset to continue]` after a critical alarm";
         let deadline = Instant::now() + duration_s(REPLY_TIMEOUT_S);
         while !self.reset_invited && Instant::now() < deadline {
@@ -823,7 +236,7 @@ impl Conn {
     }
 
     /// Sends 0x18 and waits for the banner; the position survives (a reset in `Hold:0`).
-    async fn soft_reset(&mut self) -> DeviceResult<()> {
+    pub(super) async fn soft_reset(&mut self) -> DeviceResult<()> {
         self.expect_reset = Some(ResetCause::Stop);
         self.send_realtime(Realtime::SoftReset).await?;
         self.motion_end = None;
@@ -832,7 +245,7 @@ impl Conn {
 
     /// Reads until the banner (checking it is GRBL 1.1 when `first`), then the messages
     /// that follow it.
-    async fn await_banner(&mut self, first: bool) -> DeviceResult<()> {
+    pub(super) async fn await_banner(&mut self, first: bool) -> DeviceResult<()> {
         let deadline = Instant::now() + duration_s(BANNER_TIMEOUT_S);
         let request = "soft reset (0x18), waiting for the `Grbl 1.1` banner";
         loop {
@@ -871,7 +284,7 @@ impl Conn {
     }
 
     /// Sends `?` and waits for the report (and any older ones still due).
-    async fn query_status(&mut self) -> DeviceResult<Status> {
+    pub(super) async fn query_status(&mut self) -> DeviceResult<Status> {
         let deadline = Instant::now() + duration_s(REPLY_TIMEOUT_S);
         let epoch = self.resets;
         let seen = self.status_reports;
@@ -901,7 +314,7 @@ impl Conn {
 
     /// The last status report if it is younger than `max_age_s`, else a new one: moves of
     /// several axes waiting at once share the reports instead of each polling.
-    async fn fresh_status(&mut self, max_age_s: f64) -> DeviceResult<Status> {
+    pub(super) async fn fresh_status(&mut self, max_age_s: f64) -> DeviceResult<Status> {
         if let (Some(s), Some(at)) = (self.last_status, self.last_status_at)
             && at.elapsed().as_secs_f64() < max_age_s
         {
@@ -911,7 +324,7 @@ impl Conn {
     }
 
     /// Writes a command line once it fits the controller's buffer; returns its sequence number.
-    async fn send_line(
+    pub(super) async fn send_line(
         &mut self,
         cmd: &Command,
         deadline: Instant,
@@ -945,7 +358,7 @@ impl Conn {
         Ok(seq)
     }
 
-    async fn send_realtime(&mut self, r: Realtime) -> DeviceResult<()> {
+    pub(super) async fn send_realtime(&mut self, r: Realtime) -> DeviceResult<()> {
         self.writing = true;
         self.link.write(&[r.byte()], WRITE_TIMEOUT_S).await?;
         self.writing = false;
@@ -954,7 +367,11 @@ impl Conn {
     }
 
     /// Reads one line within `slice_s` (None if none came) without absorbing it.
-    async fn next_reply(&mut self, slice_s: f64, request: &str) -> DeviceResult<Option<Reply>> {
+    pub(super) async fn next_reply(
+        &mut self,
+        slice_s: f64,
+        request: &str,
+    ) -> DeviceResult<Option<Reply>> {
         match self.link.read_line(EOL, request, slice_s).await {
             Ok(line) => Ok(Some(parse_line(&line))),
             Err(DeviceError {
@@ -978,14 +395,14 @@ impl Conn {
     }
 
     /// Reads and absorbs at most one line within `slice_s`.
-    async fn pump(&mut self, slice_s: f64, request: &str) -> DeviceResult<()> {
+    pub(super) async fn pump(&mut self, slice_s: f64, request: &str) -> DeviceResult<()> {
         if let Some(reply) = self.next_reply(slice_s, request).await? {
             self.absorb_or_resync(reply, request)?;
         }
         Ok(())
     }
 
-    fn absorb_or_resync(&mut self, reply: Reply, request: &str) -> DeviceResult<()> {
+    pub(super) fn absorb_or_resync(&mut self, reply: Reply, request: &str) -> DeviceResult<()> {
         if let Reply::Other(text) = &reply
             && text.starts_with('<')
             && text.ends_with('>')
@@ -1012,7 +429,7 @@ impl Conn {
     }
 
     /// Updates the known state with one line from the controller.
-    fn absorb(&mut self, reply: Reply) {
+    pub(super) fn absorb(&mut self, reply: Reply) {
         match reply {
             Reply::Ok | Reply::Error(_) => {
                 let r = match reply {
@@ -1094,7 +511,7 @@ impl Conn {
     }
 
     /// After a reset the controller has forgotten every line, report and move in flight.
-    fn forget_controller_state(&mut self, cause: ResetCause) {
+    pub(super) fn forget_controller_state(&mut self, cause: ResetCause) {
         self.last_reset = cause;
         self.critical = false;
         self.flow.clear();
@@ -1105,7 +522,7 @@ impl Conn {
     }
 
     /// Garbage: drop the input and the flow count and reconnect (with handshake) on next use.
-    fn resync(&mut self) {
+    pub(super) fn resync(&mut self) {
         self.link.discard_input();
         self.link.close();
         self.connected = false;
@@ -1114,7 +531,7 @@ impl Conn {
     }
 
     /// The controller did not answer in time: close the link so the next request reconnects.
-    fn deaf(&mut self, request: &str, timeout_s: f64) -> DeviceError {
+    pub(super) fn deaf(&mut self, request: &str, timeout_s: f64) -> DeviceError {
         self.link.close();
         self.connected = false;
         DeviceError::new(
@@ -1128,7 +545,12 @@ impl Conn {
 
     /// Fails if the controller was reset, the link lost, or an alarm raised since a request
     /// (`epoch`, `alarms`) began.
-    fn check_continuity(&self, epoch: u64, alarms: u64, cmd: &Command) -> DeviceResult<()> {
+    pub(super) fn check_continuity(
+        &self,
+        epoch: u64,
+        alarms: u64,
+        cmd: &Command,
+    ) -> DeviceResult<()> {
         if self.alarm_events != alarms {
             return Err(self.alarm_error(None));
         }
@@ -1158,7 +580,7 @@ impl Conn {
         Ok(())
     }
 
-    fn alarm_error(&self, position_deg: Option<f64>) -> DeviceError {
+    pub(super) fn alarm_error(&self, position_deg: Option<f64>) -> DeviceError {
         let device = self.link.device().to_string();
         match (self.last_alarm, position_deg) {
             (1, Some(position_deg)) => {
@@ -1174,7 +596,7 @@ impl Conn {
         }
     }
 
-    fn rejected(&self, cmd: &Command, code: u32) -> DeviceError {
+    pub(super) fn rejected(&self, cmd: &Command, code: u32) -> DeviceError {
         DeviceError::new(
             self.link.device().to_string(),
             DeviceErrorKind::Rejected {
@@ -1185,7 +607,7 @@ impl Conn {
         )
     }
 
-    fn other(&self, message: String) -> DeviceError {
+    pub(super) fn other(&self, message: String) -> DeviceError {
         DeviceError::new(
             self.link.device().to_string(),
             DeviceErrorKind::Other { message },
@@ -1193,79 +615,13 @@ impl Conn {
     }
 }
 
-/// The controller letter of a GRBL axis (`controller_axis`: one of X, Y, Z).
-pub(crate) fn letter_of(spec: &AxisSpec) -> Option<char> {
-    let text = spec.controller_axis.as_deref()?.trim();
-    let mut chars = text.chars();
-    let letter = chars.next()?.to_ascii_uppercase();
-    (chars.next().is_none() && axis_index(letter).is_some()).then_some(letter)
-}
-
-fn index(letter: char, label: &str) -> DeviceResult<usize> {
-    axis_index(letter).ok_or_else(|| {
-        DeviceError::new(
-            label.to_string(),
-            DeviceErrorKind::Other {
-                message: format!("`{letter}` is not a GRBL axis letter (X, Y or Z)"),
-            },
-        )
-    })
-}
-
-/// A failed homing cycle as [`DeviceErrorKind::HomingFailed`] (for an alarm) saying what to check.
-fn homing_error(e: DeviceError, cmd: &Command, mask: [bool; 3], port: &str) -> DeviceError {
-    let DeviceError {
-        device,
-        kind: DeviceErrorKind::Alarm { code, meaning },
-    } = e
-    else {
-        return e;
-    };
-    let letters: String = super::codec::AXIS_LETTERS
-        .iter()
-        .zip(mask)
-        .filter(|(_, on)| *on)
-        .map(|(l, _)| *l)
-        .collect();
-    let check = match code {
-        9 => format!(
-            "`{}` on {port} found no switch of axis {letters} within 1.5 × `$13x`: check the switch wiring, `$5` (switch polarity), `$23` (homing direction), `$25` (seek rate) and `$13x` (travel)",
-            cmd.line()
-        ),
-        8 => format!(
-            "`{}` on {port}: the switch of axis {letters} stayed pressed after the pull-off: check `$27` (pull-off), `$5` (switch polarity) and the switch wiring",
-            cmd.line()
-        ),
-        6 => format!(
-            "`{}` on {port} was interrupted by a reset; home again",
-            cmd.line()
-        ),
-        _ => format!(
-            "`{}` on {port}: check the homing switches of axis {letters}, `$5`, `$23` and `$25`",
-            cmd.line()
-        ),
-    };
-    DeviceError::new(
-        device,
-        DeviceErrorKind::HomingFailed {
-            code,
-            meaning,
-            check,
-        },
-    )
-}
-
-/// The same error naming `name` as its device (an axis id instead of the controller).
-pub(crate) fn named(e: DeviceError, name: &str) -> DeviceError {
-    e.with_device(name)
-}
-
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::rig::{AxisRole, Backend};
 
-    fn spec(letter: Option<&str>) -> AxisSpec {
+    /// A turntable on controller axis `letter`.
+    pub(crate) fn spec(letter: Option<&str>) -> AxisSpec {
         AxisSpec {
             id: "turntable".into(),
             backend: Backend::Grbl,
@@ -1284,30 +640,6 @@ mod tests {
             home_deg: 0.0,
             machine_sign: 1.0,
         }
-    }
-
-    #[test]
-    fn axis_letters_are_x_y_or_z() {
-        assert_eq!(letter_of(&spec(Some("x"))), Some('X'));
-        assert_eq!(letter_of(&spec(Some(" Z "))), Some('Z'));
-        assert_eq!(letter_of(&spec(Some("A"))), None);
-        assert_eq!(letter_of(&spec(Some("XY"))), None);
-        assert_eq!(letter_of(&spec(None)), None);
-    }
-
-    #[test]
-    fn errors_are_renamed_to_the_axis() {
-        let e = named(
-            DeviceError::new(
-                "grbl",
-                DeviceErrorKind::Timeout {
-                    request: "?".into(),
-                    timeout_s: 1.0,
-                },
-            ),
-            "turntable",
-        );
-        assert_eq!(e.device(), "turntable");
     }
 
     #[test]

@@ -11,7 +11,7 @@
 use std::sync::Arc;
 
 use super::codec::LASER_FULL_POWER;
-use super::conn::GrblController;
+use super::controller::GrblController;
 use crate::error::DeviceResult;
 use crate::laser::LaserDriver;
 

@@ -8,11 +8,12 @@
 pub mod axis;
 pub mod codec;
 pub mod codes;
-pub mod conn;
+mod conn;
+pub mod controller;
 pub mod flow;
 pub mod laser;
 pub mod settings;
 
 pub use axis::GrblAxis;
-pub use conn::GrblController;
+pub use controller::GrblController;
 pub use laser::GrblLaser;
