@@ -34,10 +34,10 @@ use aravis::{
     Stream,
 };
 
-use super::HardwareCamera;
-use super::config::{self, TriggerMode};
-use super::pixels;
-use super::worker::{Blocking, Image, Link, RawFrame};
+use crate::cameras::HardwareCamera;
+use crate::cameras::config::{self, TriggerMode};
+use crate::cameras::pixels;
+use crate::cameras::worker::{Blocking, Image, Link, RawFrame};
 use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::rig::CameraSpec;
 
