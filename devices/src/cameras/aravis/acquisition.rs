@@ -1,31 +1,12 @@
-//! GenICam cameras (GigE Vision, USB3 Vision) through aravis (feature `cam-aravis`).
-//!
-//! - **Opening.** The rig file's `port` names the camera: an IPv4 address (`192.168.10.21`), an
-//!   aravis device id (`Basler-acA1300-200001`, `Aravis-Fake-GV02`), vendor-serial, user id or
-//!   MAC, or the bare serial number (`GV02`), looked up in the device list.
-//! - **Triggering.** Every trigger selector but `FrameStart` is switched off, then
-//!   `TriggerSelector=FrameStart, TriggerMode=On, TriggerSource=Line1` (hardware) or `Software`
-//!   (fired with `TriggerSoftware` on `expect`); each is read back.
-//! - **Exposure and gain.** `ExposureTimeAbs` (GigE cameras of the pre-SFNC naming, and aravis's
-//!   fake camera), else `ExposureTime`, in µs; `Gain` in dB, else `GainRaw` mapped linearly
-//!   from gain 1 to the rig's `max_gain` across the raw range. Each is read back, and the values
-//!   the camera reports go into every frame's notes (`camera`).
-//! - **Accounting.** Frames are matched to triggers by the GigE Vision block id (16 bits, 0
-//!   skipped, so it counts modulo 65535) or the 64-bit id of USB3 Vision and extended-id GigE.
-//! - **Faults.** A frame that arrived incomplete (packets lost that resends did not bring back)
-//!   is reported as [`DeviceErrorKind::MissingFrame`] for its trigger, never delivered. A link
-//!   failure (GVCP timeout, control lost, heartbeat lost) marks the camera lost: no further
-//!   command is sent to it, its triggers are reported missing at their deadline, and the next
-//!   arm (or configure while disarmed) reopens it once it answers again.
-//!
-//! [`StreamStats`] exposes the transport counters (packets resent and missing, frames failed
-//! or incomplete, reopens) summed over every stream the camera opened.
+//! The worker thread of one GenICam camera: configures exposure, gain and triggering (each
+//! read back), arms and disarms the stream, fires software triggers and grabs frames,
+//! matching them to triggers by block id, and marks the camera lost on a link failure (see
+//! the module docs of [`super`]).
 
-use std::ffi::{CStr, c_char};
-use std::net::{Ipv4Addr, SocketAddrV4, UdpSocket};
+use std::net::Ipv4Addr;
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex, PoisonError};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use aravis::glib::prelude::*;
 use aravis::prelude::*;
@@ -34,23 +15,17 @@ use aravis::{
     Stream,
 };
 
-use crate::cameras::HardwareCamera;
+use super::{GV_BLOCK_IDS, StreamCounters, StreamStats, TRIGGER_LINE, connect, gvcp_probe};
 use crate::cameras::config::{self, TriggerMode};
 use crate::cameras::pixels;
-use crate::cameras::worker::{Blocking, Image, Link, RawFrame};
+use crate::cameras::worker::{Blocking, Image, RawFrame};
 use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::rig::CameraSpec;
 
-/// The input line a hardware trigger is wired to.
-pub const TRIGGER_LINE: &str = "Line1";
-/// The GigE Vision control protocol's UDP port.
-pub const GVCP_PORT: u16 = 3956;
 /// Frame buffers queued on the stream.
 const BUFFERS: usize = 8;
 /// Bootstrap register holding a GigE Vision device's current IPv4 address.
 const GVBS_CURRENT_IP_ADDRESS: u64 = 0x0024;
-/// GigE Vision 1.x block ids count 1..=65535 (0 is invalid), so the sequence wraps here.
-pub const GV_BLOCK_IDS: u64 = 65_535;
 /// How long a reopen waits for a lost GigE camera to answer a discovery before giving up
 /// (a dead camera would otherwise hold each GVCP call for seconds of retries).
 const PROBE_TIMEOUT: Duration = Duration::from_millis(300);
@@ -60,229 +35,6 @@ const SOCKET_BUFFER_BYTES: usize = 8 << 20;
 
 /// How far the gain a camera reports may be from the one set (cameras step gain in ~0.03 dB).
 const GAIN_TOLERANCE_DB: f64 = 0.1;
-
-/// Serialises use of aravis's global device list (its strings live until the next update).
-static DEVICE_LIST: Mutex<()> = Mutex::new(());
-
-/// One GenICam device as aravis's discovery sees it.
-#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
-pub struct ListedDevice {
-    /// The id aravis opens it by (`vendor-model-serial` for GigE).
-    pub id: String,
-    /// Network address (GigE) or bus address (USB).
-    pub address: String,
-    /// Serial number as the device reports it (`port` may name the camera by it).
-    pub serial: String,
-    /// Manufacturer name, for the operator.
-    pub vendor: String,
-    /// Model name, for the operator.
-    pub model: String,
-    /// `GigEVision`, `USB3Vision`, `Fake`, …
-    pub protocol: String,
-    /// MAC address (GigE) or bus id (USB).
-    pub physical_id: String,
-}
-
-/// Every GenICam device aravis can see now. GigE discovery waits about a second for answers.
-pub fn list_devices() -> Vec<ListedDevice> {
-    let _guard = DEVICE_LIST.lock().unwrap_or_else(PoisonError::into_inner);
-    /// Copies a C string aravis owns (empty for NULL).
-    ///
-    /// # Safety
-    /// `p` is NULL or a NUL-terminated string valid for the duration of the call.
-    unsafe fn text(p: *const c_char) -> String {
-        if p.is_null() {
-            String::new()
-        } else {
-            // SAFETY: non-NULL and NUL-terminated per the caller's contract.
-            unsafe { CStr::from_ptr(p) }.to_string_lossy().into_owned()
-        }
-    }
-    // SAFETY: the list is global state in aravis; the guard makes this the only code in the
-    // process that updates or reads it, and every string is copied before the guard drops.
-    unsafe {
-        aravis_sys::arv_update_device_list();
-        let n = aravis_sys::arv_get_n_devices();
-        (0..n)
-            .map(|i| ListedDevice {
-                id: text(aravis_sys::arv_get_device_id(i)),
-                address: text(aravis_sys::arv_get_device_address(i)),
-                serial: text(aravis_sys::arv_get_device_serial_nbr(i)),
-                vendor: text(aravis_sys::arv_get_device_vendor(i)),
-                model: text(aravis_sys::arv_get_device_model(i)),
-                protocol: text(aravis_sys::arv_get_device_protocol(i)),
-                physical_id: text(aravis_sys::arv_get_device_physical_id(i)),
-            })
-            .collect()
-    }
-}
-
-/// Whether a GigE Vision device answers a unicast GVCP discovery at `address` within
-/// `timeout`. Cheap, so a lost camera is probed before aravis spends seconds on retries.
-pub fn gvcp_probe(address: Ipv4Addr, timeout: Duration) -> bool {
-    const REQ_ID: u16 = 0x5348;
-    let Ok(socket) = UdpSocket::bind((Ipv4Addr::UNSPECIFIED, 0)) else {
-        return false;
-    };
-    // GVCP command header: key 0x42, flags (ack required), DISCOVERY_CMD, no payload, req id.
-    let [hi, lo] = REQ_ID.to_be_bytes();
-    let discovery = [0x42, 0x01, 0x00, 0x02, 0x00, 0x00, hi, lo];
-    if socket
-        .send_to(&discovery, SocketAddrV4::new(address, GVCP_PORT))
-        .is_err()
-    {
-        return false;
-    }
-    let deadline = Instant::now() + timeout;
-    let mut reply = [0u8; 600];
-    loop {
-        let left = deadline.saturating_duration_since(Instant::now());
-        if left.is_zero() || socket.set_read_timeout(Some(left)).is_err() {
-            return false;
-        }
-        match socket.recv_from(&mut reply) {
-            // DISCOVERY_ACK (0x0003) carrying our request id.
-            Ok((n, _)) if n >= 8 && reply[2..4] == [0x00, 0x03] && reply[6..8] == [hi, lo] => {
-                return true;
-            }
-            Ok(_) => {}
-            Err(_) => return false,
-        }
-    }
-}
-
-/// Transport counters of one camera, summed over every stream it opened.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
-pub struct StreamCounters {
-    /// Frames the stream completed (aravis `n_completed_buffers`).
-    pub completed_frames: u64,
-    /// Frames the stream gave up on or delivered incomplete (aravis `n_failures`).
-    pub failed_frames: u64,
-    /// Frames dropped because no buffer was free (aravis `n_underruns`).
-    pub underruns: u64,
-    /// Packets the camera sent again when asked (aravis `n_resent_packets`).
-    pub resent_packets: u64,
-    /// Packets still missing when their frame was given up (aravis `n_missing_packets`).
-    pub missing_packets: u64,
-    /// Frames this driver reported as missing because they arrived incomplete.
-    pub incomplete_frames: u64,
-    /// Times the camera was reopened after it was lost.
-    pub reopens: u64,
-}
-
-impl StreamCounters {
-    fn plus(self, o: Self) -> Self {
-        Self {
-            completed_frames: self.completed_frames + o.completed_frames,
-            failed_frames: self.failed_frames + o.failed_frames,
-            underruns: self.underruns + o.underruns,
-            resent_packets: self.resent_packets + o.resent_packets,
-            missing_packets: self.missing_packets + o.missing_packets,
-            incomplete_frames: self.incomplete_frames + o.incomplete_frames,
-            reopens: self.reopens + o.reopens,
-        }
-    }
-
-    /// The counters aravis keeps for `stream` (the driver's own counts are zero).
-    fn of(stream: &Stream) -> Self {
-        let (completed_frames, failed_frames, underruns) = stream.statistics();
-        let (resent_packets, missing_packets) = stream
-            .downcast_ref::<GvStream>()
-            .map_or((0, 0), |gv| gv.statistics());
-        Self {
-            completed_frames,
-            failed_frames,
-            underruns,
-            resent_packets,
-            missing_packets,
-            ..Self::default()
-        }
-    }
-}
-
-/// A live view of one camera's [`StreamCounters`], updated by its worker thread.
-#[derive(Debug, Clone, Default)]
-pub struct StreamStats(Arc<Mutex<StreamCounters>>);
-
-impl StreamStats {
-    /// The counters as of the worker's last grab.
-    pub fn snapshot(&self) -> StreamCounters {
-        *self.0.lock().unwrap_or_else(PoisonError::into_inner)
-    }
-
-    fn set(&self, c: StreamCounters) {
-        *self.0.lock().unwrap_or_else(PoisonError::into_inner) = c;
-    }
-}
-
-/// A GenICam camera driven from its own thread.
-pub struct AravisCamera;
-
-impl AravisCamera {
-    /// Opens the camera `spec.port` names (see the module docs for the forms it takes).
-    pub fn open(spec: &CameraSpec, mode: TriggerMode) -> DeviceResult<HardwareCamera> {
-        Self::open_with_stats(spec, mode).map(|(link, _)| link)
-    }
-
-    /// Like [`Self::open`], also returning the camera's live transport counters.
-    pub fn open_with_stats(
-        spec: &CameraSpec,
-        mode: TriggerMode,
-    ) -> DeviceResult<(HardwareCamera, StreamStats)> {
-        let port = config::aravis_device_id(spec)?;
-        let stats = StreamStats::default();
-        let (spec, s) = (spec.clone(), stats.clone());
-        let link = Link::spawn(&spec.id.clone(), mode, move || {
-            let camera = connect(&spec.id, &port)?;
-            Worker::new(spec, port, mode, camera, s)
-        })?;
-        Ok((link, stats))
-    }
-}
-
-/// Opens the camera `port` names: address or aravis id first, then the bare serial number.
-fn connect(device: &str, port: &str) -> DeviceResult<Camera> {
-    let unavailable = |reason: String| {
-        DeviceError::new(
-            device.to_string(),
-            DeviceErrorKind::PortUnavailable {
-                port: port.to_string(),
-                reason,
-            },
-        )
-    };
-    let first = match Camera::new(Some(port)) {
-        Ok(c) => return Ok(c),
-        Err(e) => e,
-    };
-    if port.parse::<Ipv4Addr>().is_ok()
-        || first.kind::<aravis::DeviceError>() != Some(aravis::DeviceError::NotFound)
-    {
-        return Err(unavailable(first.to_string()));
-    }
-    let by_serial: Vec<ListedDevice> = list_devices()
-        .into_iter()
-        .filter(|d| d.serial == port)
-        .collect();
-    match by_serial.as_slice() {
-        [d] => Camera::new(Some(&d.id)).map_err(|e| unavailable(format!("{} ({e})", d.id))),
-        [] => Err(unavailable(format!(
-            "{first}; no camera has this id, address or serial number (see `stagehand devices`)"
-        ))),
-        many => Err(DeviceError::new(
-            device.to_string(),
-            DeviceErrorKind::Other {
-                message: format!(
-                    "serial number `{port}` is shared by {}; name the camera by its id in `port`",
-                    many.iter()
-                        .map(|d| d.id.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            },
-        )),
-    }
-}
 
 /// Whether an aravis error means the link to the camera failed (rather than a request the
 /// camera refused): then the camera is treated as lost until it is reopened.
@@ -307,7 +59,7 @@ struct ReadBack {
 }
 
 /// The blocking side, owned by the worker thread.
-struct Worker {
+pub(super) struct Worker {
     spec: CameraSpec,
     port: String,
     mode: TriggerMode,
@@ -329,7 +81,7 @@ struct Worker {
 }
 
 impl Worker {
-    fn new(
+    pub(super) fn new(
         spec: CameraSpec,
         port: String,
         mode: TriggerMode,
@@ -861,79 +613,5 @@ mod tests {
                 ..
             })
         ));
-    }
-
-    #[test]
-    fn counters_add_up() {
-        let a = StreamCounters {
-            completed_frames: 3,
-            resent_packets: 2,
-            reopens: 1,
-            ..StreamCounters::default()
-        };
-        let b = StreamCounters {
-            completed_frames: 4,
-            missing_packets: 5,
-            incomplete_frames: 1,
-            ..StreamCounters::default()
-        };
-        let s = a.plus(b);
-        assert_eq!(
-            (s.completed_frames, s.resent_packets, s.missing_packets),
-            (7, 2, 5)
-        );
-        assert_eq!((s.incomplete_frames, s.reopens), (1, 1));
-    }
-
-    /// Aravis's in-process fake camera: configure, arm, one software trigger, one accounted
-    /// frame carrying the settings read back.
-    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-    async fn fake_camera_grabs_one_frame_per_trigger() {
-        let spec: CameraSpec = toml::from_str(
-            "id = \"gc0\"\nbackend = \"aravis\"\nport = \"Fake_1\"\nwidth = 512\nheight = 512\nfps = 20.0\nazimuth_deg = 0.0\nelevation_deg = 0.0\ndistance_mm = 1.0\nfov_deg = 30.0\nmax_gain = 11.0\n",
-        )
-        .expect("spec");
-        let mut link = Link::spawn("gc0", TriggerMode::Software, move || {
-            // SAFETY: a plain C call with a NUL-terminated static string; libaravis is linked.
-            unsafe { aravis_sys::arv_enable_interface(c"Fake".as_ptr()) };
-            let camera = connect("gc0", "Fake_1")?;
-            Worker::new(
-                spec,
-                "Fake_1".into(),
-                TriggerMode::Software,
-                camera,
-                StreamStats::default(),
-            )
-        })
-        .expect("fake camera opens");
-        link.configure(0.01, 3.0).await.expect("configure");
-        link.set_armed(true).await.expect("arm");
-        link.expect(41, 0.01).expect("expect");
-        let f = tokio::time::timeout(Duration::from_secs(4), link.next_frame())
-            .await
-            .expect("a frame within 4 s")
-            .expect("frame ok");
-        assert_eq!(f.trigger_id, 41);
-        assert_eq!(f.camera, "gc0");
-        assert_eq!((f.width, f.height), (512, 512));
-        assert_eq!(f.pixels.len(), (f.width * f.height * 3) as usize);
-        let cam = &f.notes["camera"];
-        assert_eq!(cam["exposure_feature"], "ExposureTimeAbs");
-        assert_eq!(cam["exposure_us"], 10_000.0);
-        assert_eq!(cam["gain_feature"], "GainRaw");
-        assert_eq!(cam["gain"], 2.0);
-        assert_eq!(cam["trigger_source"], "Software");
-        link.set_armed(false).await.expect("disarm");
-    }
-
-    /// Nothing listens on this loopback address's GVCP port: the probe says so in time.
-    #[test]
-    fn probe_of_a_silent_address_is_false() {
-        let t = Instant::now();
-        assert!(!gvcp_probe(
-            Ipv4Addr::new(127, 0, 0, 254),
-            Duration::from_millis(100)
-        ));
-        assert!(t.elapsed() < Duration::from_secs(5));
     }
 }
