@@ -11,17 +11,14 @@ use std::io::Cursor;
 use exr::image::read::image::ReadLayers;
 use exr::image::read::layers::ReadChannels;
 use exr::image::read::read;
-use exr::image::write::WritableImage;
-use exr::image::{Blocks, Encoding, Image, Layer, RgbChannels, SpecificChannels};
+use exr::image::{Image, RgbChannels, SpecificChannels};
 use exr::math::Vec2;
-use exr::meta::attribute::{AttributeValue, LineOrder, Text};
-use exr::meta::header::LayerAttributes;
 
 use crate::error::{Result, StorageError};
+use crate::exr_file;
 use crate::png16::rgb_samples;
 
-/// Name of the text attribute holding the frame metadata JSON.
-pub const ATTRIBUTE: &str = "stagehand";
+pub use crate::exr_file::ATTRIBUTE;
 
 /// A decoded stagehand OpenEXR file.
 #[derive(Debug, Clone, PartialEq)]
@@ -60,31 +57,8 @@ pub fn encode_exr(
         let i = (pos.y() * w + pos.x()) * 3;
         (pixels[i], pixels[i + 1], pixels[i + 2])
     });
-    let mut attributes = LayerAttributes {
-        software_name: Some(Text::from_slice_unchecked(b"stagehand")),
-        ..LayerAttributes::default()
-    };
-    attributes.other.insert(
-        Text::from_slice_unchecked(ATTRIBUTE.as_bytes()),
-        AttributeValue::Text(Text::from_slice_unchecked(metadata_json.as_bytes())),
-    );
-    let encoding = Encoding {
-        compression: exr::compression::Compression::ZIP16,
-        blocks: Blocks::ScanLines,
-        line_order: LineOrder::Increasing,
-    };
-    let layer = Layer::new((w, height as usize), attributes, encoding, channels);
-    let image = Image::from_layer(layer);
-    let mut out = Cursor::new(Vec::with_capacity(samples * 2));
-    image
-        .write()
-        .to_buffered(&mut out)
-        .map_err(|source| StorageError::Exr {
-            op: "encode",
-            name: name.to_string(),
-            source,
-        })?;
-    Ok(out.into_inner())
+    let image = Image::from_layer(exr_file::layer(width, height, channels, metadata_json));
+    exr_file::write(name, &image, samples * 2)
 }
 
 /// Pixel buffer used while decoding.
@@ -112,46 +86,15 @@ pub fn decode_exr(name: &str, bytes: &[u8]) -> Result<DecodedExr> {
         .first_valid_layer()
         .all_attributes()
         .from_buffered(Cursor::new(bytes))
-        .map_err(|source| StorageError::Exr {
-            op: "decode",
-            name: name.to_string(),
-            source,
-        })?;
+        .map_err(exr_file::exr_error("decode", name))?;
     let layer = image.layer_data;
-    let size = layer.size;
-    let metadata = metadata_attribute(&layer.attributes);
-    let too_big = || too_big_error(name, size);
+    let (width, height) = exr_file::dimensions(name, layer.size)?;
     Ok(DecodedExr {
-        width: u32::try_from(size.width()).map_err(|_| too_big())?,
-        height: u32::try_from(size.height()).map_err(|_| too_big())?,
+        width,
+        height,
+        metadata: exr_file::metadata_attribute(&layer.attributes),
         pixels: layer.channel_data.pixels.pixels,
-        metadata,
     })
-}
-
-/// The [`ATTRIBUTE`] text attribute of a decoded layer, if present.
-pub(super) fn metadata_attribute(attributes: &LayerAttributes) -> Option<String> {
-    match attributes
-        .other
-        .get(&Text::from_slice_unchecked(ATTRIBUTE.as_bytes()))
-    {
-        Some(AttributeValue::Text(text)) => {
-            Some(String::from_utf8_lossy(text.as_slice()).into_owned())
-        }
-        _ => None,
-    }
-}
-
-/// The error for a decoded image whose size does not fit the frame's u32 dimensions.
-pub(super) fn too_big_error(name: &str, size: exr::math::Vec2<usize>) -> StorageError {
-    StorageError::InvalidFrame {
-        name: name.to_string(),
-        reason: format!(
-            "image size {}x{} does not fit in u32",
-            size.width(),
-            size.height()
-        ),
-    }
 }
 
 #[cfg(test)]

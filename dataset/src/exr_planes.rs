@@ -1,6 +1,6 @@
 //! Ground-truth images as OpenEXR: any number of named **f32** channels (depth `Z`, normal
 //! `X Y Z`, material `albedo.R …`), ZIP compression (16 scan lines per block), metadata JSON in
-//! the same `stagehand` text attribute as HDR frames ([`crate::exr_hdr::ATTRIBUTE`]).
+//! the same `stagehand` text attribute as HDR frames ([`crate::exr_file::ATTRIBUTE`]).
 //!
 //! OpenEXR stores channels sorted by name; [`decode_exr_planes`] returns them in file order,
 //! so readers look channels up by name.
@@ -10,14 +10,12 @@ use std::io::Cursor;
 use exr::image::read::image::ReadLayers;
 use exr::image::read::layers::ReadChannels;
 use exr::image::read::read;
-use exr::image::write::WritableImage;
-use exr::image::{AnyChannel, AnyChannels, Blocks, Encoding, FlatSamples, Image, Layer};
-use exr::meta::attribute::{AttributeValue, LineOrder, Text};
-use exr::meta::header::LayerAttributes;
+use exr::image::{AnyChannel, AnyChannels, FlatSamples, Image};
+use exr::meta::attribute::Text;
 use exr::prelude::SmallVec;
 
 use crate::error::{Result, StorageError};
-use crate::exr_hdr::{ATTRIBUTE, metadata_attribute, too_big_error};
+use crate::exr_file;
 
 /// A decoded multi-channel stagehand OpenEXR file.
 #[derive(Debug, Clone, PartialEq)]
@@ -90,36 +88,13 @@ pub fn encode_exr_planes(
             }
         })
         .collect();
-    let mut attributes = LayerAttributes {
-        software_name: Some(Text::from_slice_unchecked(b"stagehand")),
-        ..LayerAttributes::default()
-    };
-    attributes.other.insert(
-        Text::from_slice_unchecked(ATTRIBUTE.as_bytes()),
-        AttributeValue::Text(Text::from_slice_unchecked(metadata_json.as_bytes())),
-    );
-    let encoding = Encoding {
-        compression: exr::compression::Compression::ZIP16,
-        blocks: Blocks::ScanLines,
-        line_order: LineOrder::Increasing,
-    };
-    let layer = Layer::new(
-        (width as usize, height as usize),
-        attributes,
-        encoding,
+    let image = Image::from_layer(exr_file::layer(
+        width,
+        height,
         AnyChannels::sort(list),
-    );
-    let image = Image::from_layer(layer);
-    let mut out = Cursor::new(Vec::with_capacity(samples.len() * 2));
-    image
-        .write()
-        .to_buffered(&mut out)
-        .map_err(|source| StorageError::Exr {
-            op: "encode",
-            name: name.to_string(),
-            source,
-        })?;
-    Ok(out.into_inner())
+        metadata_json,
+    ));
+    exr_file::write(name, &image, samples.len() * 2)
 }
 
 /// Decodes the first layer of an OpenEXR file with all its channels (any sample type,
@@ -132,15 +107,9 @@ pub fn decode_exr_planes(name: &str, bytes: &[u8]) -> Result<DecodedPlanes> {
         .first_valid_layer()
         .all_attributes()
         .from_buffered(Cursor::new(bytes))
-        .map_err(|source| StorageError::Exr {
-            op: "decode",
-            name: name.to_string(),
-            source,
-        })?;
+        .map_err(exr_file::exr_error("decode", name))?;
     let layer = image.layer_data;
-    let size = layer.size;
-    let metadata = metadata_attribute(&layer.attributes);
-    let too_big = || too_big_error(name, size);
+    let (width, height) = exr_file::dimensions(name, layer.size)?;
     let channels = layer
         .channel_data
         .list
@@ -153,10 +122,10 @@ pub fn decode_exr_planes(name: &str, bytes: &[u8]) -> Result<DecodedPlanes> {
         })
         .collect();
     Ok(DecodedPlanes {
-        width: u32::try_from(size.width()).map_err(|_| too_big())?,
-        height: u32::try_from(size.height()).map_err(|_| too_big())?,
+        width,
+        height,
         channels,
-        metadata,
+        metadata: exr_file::metadata_attribute(&layer.attributes),
     })
 }
 

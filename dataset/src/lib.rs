@@ -18,6 +18,7 @@
 //! | [`atomic`] | temp → fsync → rename → fsync dir |
 //! | [`checksum`] | SHA-256 of frame files |
 //! | [`png16`] | 16-bit RGB PNG with iTXt metadata |
+//! | [`exr_file`] | the OpenEXR conventions both EXR kinds share (ZIP16, metadata attribute) |
 //! | [`exr_hdr`] | OpenEXR f32 RGB, ZIP |
 //! | [`exr_planes`] | OpenEXR f32 named channels (ground truth), ZIP |
 //! | [`hdr_merge`] | Debevec-style bracket merge |
@@ -58,6 +59,7 @@
 pub mod atomic;
 pub mod checksum;
 pub mod error;
+pub mod exr_file;
 pub mod exr_hdr;
 pub mod exr_planes;
 pub mod frame_meta;
