@@ -547,7 +547,7 @@ fn main() -> Result<()> {
         let t = Instant::now();
         for i in 0..burst {
             d.state.hub.publish(
-                "warning",
+                stagehand::daemon::events::EventKind::Warning,
                 json!({"message": format!("load benchmark burst {i}/{burst}")}),
             );
         }

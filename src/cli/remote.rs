@@ -17,8 +17,8 @@ use tokio::signal::unix::{Signal, SignalKind};
 use tokio::sync::mpsc;
 
 use crate::client::{
-    Client, ClientError, DaemonEvent, DryRun, EventStream, PromptAnswer, PromptEvent, RunState,
-    StartRun,
+    Client, ClientError, DaemonEvent, DryRun, EventKind, EventStream, PromptAnswer, PromptEvent,
+    RunState, StartRun,
 };
 use crate::executor::Event;
 use crate::units::hms;
@@ -505,7 +505,7 @@ impl Follower {
                 }
             }
             DaemonEvent::Other(hub) => {
-                if hub.kind == "estop" {
+                if hub.kind == EventKind::Estop {
                     self.say(format!("E-STOP: {}", show(&hub.data)));
                 }
             }

@@ -19,7 +19,7 @@ use serde::de::DeserializeOwned;
 
 pub use crate::daemon::api::{PromptAnswer, RunSummary};
 pub use crate::daemon::error::{ErrorBody, ViolationItem};
-pub use crate::daemon::events::HubEvent;
+pub use crate::daemon::events::{EventKind, HubEvent};
 pub use crate::daemon::operator::PromptInfo;
 pub use crate::daemon::run_start::{StartRun, Started};
 pub use crate::daemon::runs::RunState;

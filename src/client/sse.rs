@@ -12,7 +12,7 @@ use futures_util::{Stream, StreamExt};
 use serde::Deserialize;
 use serde::de::DeserializeOwned;
 
-use super::{ClientError, HubEvent, PromptAnswer, RunState, excerpt};
+use super::{ClientError, EventKind, HubEvent, PromptAnswer, RunState, excerpt};
 use crate::executor::Event;
 
 /// One Server-Sent Event as it came.
@@ -96,10 +96,10 @@ pub fn decode(ev: &SseEvent) -> Result<DaemonEvent, ClientError> {
         return Ok(DaemonEvent::Resync(Box::new(r)));
     }
     let hub: HubEvent = serde_json::from_str(&ev.data).map_err(|e| bad(ev, e))?;
-    Ok(match hub.kind.as_str() {
-        "run" => DaemonEvent::Run(data(ev, hub.data)?),
-        "prompt" => DaemonEvent::Prompt(data(ev, hub.data)?),
-        "warning" => DaemonEvent::Warning(data(ev, hub.data)?),
+    Ok(match hub.kind {
+        EventKind::Run => DaemonEvent::Run(data(ev, hub.data)?),
+        EventKind::Prompt => DaemonEvent::Prompt(data(ev, hub.data)?),
+        EventKind::Warning => DaemonEvent::Warning(data(ev, hub.data)?),
         _ => DaemonEvent::Other(hub),
     })
 }

@@ -13,6 +13,7 @@ use tokio::sync::watch;
 use utoipa::ToSchema;
 
 use super::state::AppState;
+use crate::daemon::events::EventKind;
 use crate::rig::Rig;
 
 /// Shortest time between two `device` events (at most 10 per second).
@@ -205,7 +206,7 @@ pub fn spawn_device_watch(app: AppState) {
             let snap = snapshot(&daemon.rig);
             let value = serde_json::to_value(&snap).ok();
             if value != last {
-                daemon.hub.publish("device", &snap);
+                daemon.hub.publish(EventKind::Device, &snap);
                 last = value;
                 next_allowed = tokio::time::Instant::now() + MIN_EVENT_INTERVAL;
             }

@@ -14,6 +14,7 @@ use utoipa::ToSchema;
 
 use super::device_state::{self, DevicesState};
 use super::state::AppState;
+use crate::daemon::events::EventKind;
 
 /// How long the follow-up sweep waits for an aborted run to wind down before it puts the rig
 /// in its safe state once more (a step that was mid-request when the e-stop came).
@@ -106,7 +107,7 @@ pub async fn trigger(app: &AppState) -> EStopReport {
         report.elapsed_ms,
         report.errors.len()
     );
-    app.hub.publish("estop", &report);
+    app.hub.publish(EventKind::Estop, &report);
     if report.aborted_run.is_some() {
         spawn_follow_up(app.clone());
     }
@@ -124,7 +125,7 @@ pub fn reset(app: &AppState) -> EStopReport {
         errors: Vec::new(),
         devices: None,
     };
-    app.hub.publish("estop", &report);
+    app.hub.publish(EventKind::Estop, &report);
     report
 }
 

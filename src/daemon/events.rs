@@ -20,13 +20,48 @@ pub const CHANNEL_CAPACITY: usize = 1024;
 /// replayed with `Last-Event-ID`).
 pub const RECENT: usize = 200;
 
+/// The kind of a published event, also its SSE event name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum EventKind {
+    /// Progress of a run (an executor event with its `run_id`).
+    Run,
+    /// A device's published status changed.
+    Device,
+    /// A frame became durable.
+    Frame,
+    /// A prompt was asked or answered.
+    Prompt,
+    /// Something the operator should know.
+    Warning,
+    /// The e-stop was latched or released.
+    Estop,
+    /// The run queue changed.
+    Queue,
+}
+
+impl EventKind {
+    /// The SSE event name (the serde spelling).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            EventKind::Run => "run",
+            EventKind::Device => "device",
+            EventKind::Frame => "frame",
+            EventKind::Prompt => "prompt",
+            EventKind::Warning => "warning",
+            EventKind::Estop => "estop",
+            EventKind::Queue => "queue",
+        }
+    }
+}
+
 /// One published event.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct HubEvent {
     /// Increasing number, also the SSE `id`.
     pub seq: u64,
-    /// `run`, `device`, `frame`, `prompt`, `warning`, `estop`, `queue` (the SSE event name).
-    pub kind: String,
+    /// What the event is about (the SSE event name).
+    pub kind: EventKind,
     /// Wall-clock Unix time in seconds.
     pub unix_s: f64,
     /// The event itself (its shape depends on `kind`; see the README's API section).
@@ -73,7 +108,7 @@ impl EventHub {
     }
 
     /// Publishes an event; never blocks, whoever listens or not.
-    pub fn publish(&self, kind: &str, data: impl Serialize) {
+    pub fn publish(&self, kind: EventKind, data: impl Serialize) {
         let data = serde_json::to_value(data).unwrap_or_else(
             |e| serde_json::json!({"error": format!("event not serialisable: {e}")}),
         );
@@ -81,7 +116,7 @@ impl EventHub {
         let mut recent = self.recent.lock().unwrap_or_else(|p| p.into_inner());
         let event = HubEvent {
             seq: self.seq.fetch_add(1, Ordering::Relaxed) + 1,
-            kind: kind.to_string(),
+            kind,
             unix_s: crate::executor::wall_now(),
             data,
         };
@@ -90,8 +125,7 @@ impl EventHub {
         }
         recent.push_back(event.clone());
         let _ = self.tx.send(event);
-        metrics::counter!("stagehand_events_published_total", "kind" => kind.to_string())
-            .increment(1);
+        metrics::counter!("stagehand_events_published_total", "kind" => kind.as_str()).increment(1);
     }
 
     /// A receiver of every event published from now on.
@@ -154,7 +188,7 @@ mod tests {
     fn a_reconnecting_client_gets_exactly_the_events_it_missed_while_the_ring_holds_them() {
         let hub = EventHub::starting_after(1000);
         for i in 0..5 {
-            hub.publish("device", i);
+            hub.publish(EventKind::Device, i);
         }
         let (_, missed) = hub.subscribe_after(1002);
         assert_eq!(missed.map(|m| seqs(&m)), Some(vec![1003, 1004, 1005]));
@@ -165,7 +199,7 @@ mod tests {
         assert!(hub.subscribe_after(1006).1.is_none());
         // Events that left the ring cannot be replayed.
         for i in 0..RECENT {
-            hub.publish("device", i);
+            hub.publish(EventKind::Device, i);
         }
         assert!(hub.subscribe_after(1002).1.is_none());
         let oldest = hub.recent()[0].seq;
@@ -176,10 +210,10 @@ mod tests {
     #[test]
     fn events_after_the_subscription_come_through_the_receiver_not_twice() {
         let hub = EventHub::starting_after(0);
-        hub.publish("device", 1);
+        hub.publish(EventKind::Device, 1);
         let (mut rx, missed) = hub.subscribe_after(0);
         assert_eq!(missed.map(|m| seqs(&m)), Some(vec![1]));
-        hub.publish("device", 2);
+        hub.publish(EventKind::Device, 2);
         assert_eq!(rx.try_recv().map(|e| e.seq).ok(), Some(2));
         assert!(rx.try_recv().is_err());
     }
@@ -187,7 +221,7 @@ mod tests {
     #[test]
     fn a_new_hub_numbers_its_events_after_the_clock() {
         let hub = EventHub::new();
-        hub.publish("device", 1);
+        hub.publish(EventKind::Device, 1);
         // 2020-01-01 in microseconds: far above any count of events a daemon publishes.
         assert!(hub.recent()[0].seq > 1_577_836_800_000_000);
     }

@@ -11,6 +11,7 @@ use tokio::sync::oneshot;
 use utoipa::ToSchema;
 
 use super::state::AppState;
+use crate::daemon::events::EventKind;
 use crate::executor::{Answer, Operator};
 
 /// A prompt waiting for the operator.
@@ -109,7 +110,7 @@ impl Operator for ApiOperator {
                 step,
             };
             self.app.hub.publish(
-                "prompt",
+                EventKind::Prompt,
                 serde_json::json!({"run_id": self.run_id, "step": step, "message": message}),
             );
             tracing::info!(run = %self.run_id, step, "operator prompt: {message}");

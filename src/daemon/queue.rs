@@ -20,6 +20,7 @@ use utoipa::ToSchema;
 use super::error::ApiError;
 use super::run_start::{self, StartRun};
 use super::state::AppState;
+use crate::daemon::events::EventKind;
 
 /// Finished items `GET /api/queue` keeps.
 pub const HISTORY: usize = 50;
@@ -222,7 +223,7 @@ impl RunQueue {
 /// log, and the whole queue after the change.
 pub fn publish(app: &AppState, action: &str, message: String) {
     app.hub.publish(
-        "queue",
+        EventKind::Queue,
         serde_json::json!({"action": action, "message": message, "queue": app.queue.state()}),
     );
 }
@@ -305,7 +306,7 @@ async fn run_item(app: &AppState, mut item: QueueItem) {
             app.queue.pause(why.clone());
             publish(app, "paused", format!("the queue paused: {why}"));
             app.hub.publish(
-                "warning",
+                EventKind::Warning,
                 serde_json::json!({"message": why, "queue": true}),
             );
             return;

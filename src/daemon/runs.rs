@@ -19,6 +19,7 @@ use utoipa::ToSchema;
 use super::error::ApiError;
 use super::operator::{ApiOperator, PromptInfo, PromptSlot};
 use super::state::AppState;
+use crate::daemon::events::EventKind;
 use crate::executor::{Answer, Control, Event, RunControl, RunError, Summary};
 use crate::session::{DEFAULT_RESERVE_BYTES, SessionError, Wiring};
 
@@ -515,7 +516,7 @@ fn finish(app: &AppState, active: &Arc<ActiveRun>, mut outcome: Outcome) {
         let message = outcome.message.clone().unwrap_or_default();
         tracing::warn!(run = %run_id, status = %outcome.status, "run ended: {message}");
         app.hub.publish(
-            "warning",
+            EventKind::Warning,
             serde_json::json!({
                 "run_id": run_id,
                 "message": format!("run {run_id} {}: {message}", outcome.status),
@@ -528,7 +529,7 @@ fn finish(app: &AppState, active: &Arc<ActiveRun>, mut outcome: Outcome) {
         .flat_map(|s| s.safety_violations.iter())
     {
         app.hub.publish(
-            "warning",
+            EventKind::Warning,
             serde_json::json!({"run_id": run_id, "message": format!("safety violation: {v}")}),
         );
     }
@@ -546,7 +547,7 @@ async fn forward(app: AppState, active: Arc<ActiveRun>, mut rx: broadcast::Recei
                 metrics::counter!("stagehand_run_events_dropped_total").increment(n);
                 tracing::warn!(run = %active.run_id, "the event forwarder fell {n} events behind");
                 app.hub.publish(
-                    "warning",
+                    EventKind::Warning,
                     serde_json::json!({
                         "run_id": active.run_id,
                         "message": format!("{n} progress events of run {} were dropped (the daemon is busy); the progress shown may skip", active.run_id),
@@ -557,10 +558,11 @@ async fn forward(app: AppState, active: Arc<ActiveRun>, mut rx: broadcast::Recei
             Err(RecvError::Closed) => return,
         };
         active.fold(&event);
-        app.hub.publish("run", with_run_id(&event, &active.run_id));
+        app.hub
+            .publish(EventKind::Run, with_run_id(&event, &active.run_id));
         if let Event::Warning { message } = &event {
             app.hub.publish(
-                "warning",
+                EventKind::Warning,
                 serde_json::json!({"run_id": active.run_id, "message": for_api(message, &active.run_id)}),
             );
         }
@@ -618,13 +620,14 @@ async fn publish_frames(app: &AppState, active: &Arc<ActiveRun>, step: usize) {
     match frames {
         Ok(frames) => {
             for f in frames {
-                app.hub.publish("frame", with_run_id(&f, &active.run_id));
+                app.hub
+                    .publish(EventKind::Frame, with_run_id(&f, &active.run_id));
             }
         }
         Err(e) => {
             tracing::warn!(run = %active.run_id, step, "cannot list the step's frames: {e}");
             app.hub.publish(
-                "warning",
+                EventKind::Warning,
                 serde_json::json!({
                     "run_id": active.run_id,
                     "message": format!("step {step}: frames written but not listed: {e}"),

@@ -11,6 +11,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use crate::daemon::error::{ApiError, ApiJson, ApiPath, ApiQuery, ApiResult};
+use crate::daemon::events::EventKind;
 use crate::daemon::operator::PromptInfo;
 use crate::daemon::run_start::{self, CaptureRequest, CaptureResult, StartRun, Started};
 use crate::daemon::runs::{ActiveRun, RunState};
@@ -285,7 +286,7 @@ async fn answer_prompt(
         PromptAnswer::Abort => "abort",
     };
     app.hub.publish(
-        "prompt",
+        EventKind::Prompt,
         serde_json::json!({"run_id": id, "step": info.step, "answered": answered}),
     );
     Ok(ApiJson(info))
