@@ -23,6 +23,7 @@ use std::io::Cursor;
 use tiff::encoder::{Compression, DeflateLevel, Predictor, TiffEncoder, colortype};
 use tiff::tags::Tag;
 
+use crate::storage::FrameKind;
 use crate::storage::exr_hdr::{decode_exr, encode_exr};
 use crate::storage::png16::decode_png16;
 
@@ -62,12 +63,11 @@ impl ImageFormat {
         }
     }
 
-    /// The format a frame of `kind` (`raw` / `hdr`) is stored in.
-    pub fn stored(kind: &str) -> ImageFormat {
-        if kind == "hdr" {
-            ImageFormat::Exr
-        } else {
-            ImageFormat::Png
+    /// The format a frame of `kind` is stored in.
+    pub fn stored(kind: FrameKind) -> ImageFormat {
+        match kind {
+            FrameKind::Hdr => ImageFormat::Exr,
+            FrameKind::Raw => ImageFormat::Png,
         }
     }
 }
@@ -106,7 +106,7 @@ pub struct Decoded {
 }
 
 /// Decodes a stored frame (`raw` → 16-bit PNG, otherwise EXR). `name` is only used in errors.
-pub fn decode(kind: &str, name: &str, bytes: &[u8]) -> Result<Decoded, ConvertError> {
+pub fn decode(kind: FrameKind, name: &str, bytes: &[u8]) -> Result<Decoded, ConvertError> {
     let decode_err = |e: crate::storage::StorageError| ConvertError::Decode {
         name: name.to_string(),
         reason: e.to_string(),
@@ -137,7 +137,7 @@ pub fn decode(kind: &str, name: &str, bytes: &[u8]) -> Result<Decoded, ConvertEr
 /// format is the stored one, otherwise decoded and re-encoded (with the embedded metadata
 /// carried over: TIFF ImageDescription, EXR `stagehand` attribute).
 pub fn convert(
-    kind: &str,
+    kind: FrameKind,
     name: &str,
     bytes: Vec<u8>,
     format: ImageFormat,
@@ -539,15 +539,18 @@ mod tests {
         // 12-bit DN, stored MSB-aligned: every conversion gives the DN back.
         let px: Vec<u16> = (0..w * h * 3).map(|i| ((i * 271) % 4096) as u16).collect();
         let png = encode_png16("t.png", w, h, &px, 12, r#"{"camera":"c"}"#)?;
-        assert_eq!(convert("raw", "t", png.clone(), ImageFormat::Png)?, png);
+        assert_eq!(
+            convert(FrameKind::Raw, "t", png.clone(), ImageFormat::Png)?,
+            png
+        );
         // A frame of an old dataset (DN unshifted, no sBIT) converts to the same DN.
         let old =
             crate::storage::png16::encode_png16_unshifted("t.png", w, h, &px, r#"{"camera":"c"}"#)?;
         assert_eq!(
-            convert("raw", "t", old.clone(), ImageFormat::Tiff)?,
-            convert("raw", "t", png.clone(), ImageFormat::Tiff)?
+            convert(FrameKind::Raw, "t", old.clone(), ImageFormat::Tiff)?,
+            convert(FrameKind::Raw, "t", png.clone(), ImageFormat::Tiff)?
         );
-        let tif = convert("raw", "t", png.clone(), ImageFormat::Tiff)?;
+        let tif = convert(FrameKind::Raw, "t", png.clone(), ImageFormat::Tiff)?;
         let mut dec = tiff::decoder::Decoder::new(Cursor::new(tif))?;
         assert_eq!(dec.dimensions()?, (w, h));
         assert_eq!(
@@ -558,7 +561,7 @@ mod tests {
             tiff::decoder::DecodingResult::U16(v) => assert_eq!(v, px),
             other => panic!("not 16-bit: {other:?}"),
         }
-        let exr = convert("raw", "t", png, ImageFormat::Exr)?;
+        let exr = convert(FrameKind::Raw, "t", png, ImageFormat::Exr)?;
         let back = decode_exr("t", &exr)?;
         assert_eq!(
             back.pixels,
@@ -568,10 +571,10 @@ mod tests {
         let f: Vec<f32> = (0..w * h * 3).map(|i| i as f32 * 1.5e6).collect();
         let exr = encode_exr("h.exr", w, h, &f, "{}")?;
         assert!(matches!(
-            convert("hdr", "h", exr.clone(), ImageFormat::Png),
+            convert(FrameKind::Hdr, "h", exr.clone(), ImageFormat::Png),
             Err(ConvertError::WouldClip(_))
         ));
-        let tif = convert("hdr", "h", exr, ImageFormat::Tiff)?;
+        let tif = convert(FrameKind::Hdr, "h", exr, ImageFormat::Tiff)?;
         let mut dec = tiff::decoder::Decoder::new(Cursor::new(tif))?;
         match dec.read_image()? {
             tiff::decoder::DecodingResult::F32(v) => assert_eq!(v, f),
@@ -593,11 +596,21 @@ mod tests {
     #[test]
     fn garbage_is_a_decode_error() {
         assert!(matches!(
-            convert("raw", "x", b"not a png".to_vec(), ImageFormat::Tiff),
+            convert(
+                FrameKind::Raw,
+                "x",
+                b"not a png".to_vec(),
+                ImageFormat::Tiff
+            ),
             Err(ConvertError::Decode { .. })
         ));
         assert!(matches!(
-            convert("hdr", "x", b"not an exr".to_vec(), ImageFormat::Tiff),
+            convert(
+                FrameKind::Hdr,
+                "x",
+                b"not an exr".to_vec(),
+                ImageFormat::Tiff
+            ),
             Err(ConvertError::Decode { .. })
         ));
     }

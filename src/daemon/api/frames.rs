@@ -284,7 +284,7 @@ async fn download_frame(
         .map_err(|_| ApiError::internal("the conversion limiter is closed"))?;
     blocking(move || {
         let (info, file) = frame_index::frame(&app.runs_dir(), &id, frame_id)?;
-        let stored = ImageFormat::stored(info.frame.meta.kind.as_str());
+        let stored = ImageFormat::stored(info.frame.meta.kind);
         let format = match q.format {
             None => stored,
             Some(FormatParam::Png) => ImageFormat::Png,
@@ -304,7 +304,7 @@ async fn download_frame(
         }
         let bytes = frame_index::read_verified(&info, &file)?;
         let name = download_name(&info, format.extension());
-        let out = image_convert::convert(info.frame.meta.kind.as_str(), &name, bytes, format)?;
+        let out = image_convert::convert(info.frame.meta.kind, &name, bytes, format)?;
         Ok(image_response(
             out,
             format.content_type(),
@@ -354,7 +354,7 @@ async fn thumbnail(
         }
         let bytes = frame_index::read_verified(&info, &file)?;
         let name = download_name(&info, "png");
-        let decoded = image_convert::decode(info.frame.meta.kind.as_str(), &name, &bytes)?;
+        let decoded = image_convert::decode(info.frame.meta.kind, &name, &bytes)?;
         let png = image_convert::thumbnail(&decoded, size)?;
         Ok(image_response(
             png,
