@@ -327,7 +327,7 @@ async fn run_once(client: &Client, d: &RunningDaemon, positions: usize) -> Resul
     let detail = client.run(&run_id).await?.run;
     let step_s = step_times(&d.state.runs_dir().join(&run_id))?;
     Ok(RunResult {
-        status: detail.status,
+        status: detail.status.to_string(),
         steps_total: detail.steps_total,
         steps_done: detail.steps_done,
         frames: detail.frames as u64,

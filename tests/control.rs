@@ -6,6 +6,7 @@ use std::sync::Arc;
 
 use common::*;
 use stagehand::executor::{Event, RunControl};
+use stagehand::storage::RunStatus;
 
 #[test]
 fn prompts_reach_the_operator_in_order() {
@@ -98,11 +99,11 @@ fn operator_abort_stops_safely_and_resume_finishes() {
     drop(conn);
     // The abort event says the laser and lamps ended off: check the last state event order.
     assert!(
-        matches!(out.events.last(), Some(Event::RunFinished { status, .. }) if status == "aborted")
+        matches!(out.events.last(), Some(Event::RunFinished { status, .. }) if *status == RunStatus::Aborted)
     );
 
     let summary = resume(&out.dir, ScriptedOperator::new(None)).expect("resume");
-    assert_eq!(summary.status, "done");
+    assert_eq!(summary.status, RunStatus::Done);
     let conn = db(&out.dir);
     assert_eq!(
         count(&conn, "SELECT count(*) FROM frames WHERE kind='raw'"),
@@ -183,7 +184,9 @@ fn pause_holds_at_a_step_boundary_and_resume_continues() {
             .iter()
             .all(|e| !matches!(e, Event::StepStarted { .. }))
     );
-    assert!(matches!(events.last(), Some(Event::RunFinished { status, .. }) if status == "done"));
+    assert!(
+        matches!(events.last(), Some(Event::RunFinished { status, .. }) if *status == RunStatus::Done)
+    );
 }
 
 #[test]
@@ -269,7 +272,7 @@ fn resuming_a_finished_run_changes_nothing() {
     let before = disk_checksums(&out.dir);
     let rows = count(&db(&out.dir), "SELECT count(*) FROM frames");
     let summary = resume(&out.dir, ScriptedOperator::new(None)).expect("resume");
-    assert_eq!(summary.status, "done");
+    assert_eq!(summary.status, RunStatus::Done);
     assert_eq!(summary.frames_written, 0);
     assert_eq!(disk_checksums(&out.dir), before);
     assert_eq!(count(&db(&out.dir), "SELECT count(*) FROM frames"), rows);

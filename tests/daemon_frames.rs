@@ -19,6 +19,7 @@ use stagehand::client::Body;
 use stagehand::daemon::{RunningDaemon, ServeOptions};
 use stagehand::executor::{AutoConfirm, RunControl};
 use stagehand::session::{self, Wiring};
+use stagehand::storage::RunStatus;
 use stagehand::storage::exr_hdr::decode_exr;
 use stagehand::storage::png16::decode_png16;
 use tokio::sync::broadcast;
@@ -83,7 +84,7 @@ fn make_dataset() -> Dataset {
             session::run(prepared, store, rig, wiring).await
         })
         .expect("quickstart runs");
-    assert_eq!(summary.status, "done");
+    assert_eq!(summary.status, RunStatus::Done);
     let run_id = file_name(&run_dir);
 
     // Tokens now, so the daemons the tests start concurrently all load the same file.

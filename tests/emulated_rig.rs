@@ -15,6 +15,7 @@ use stagehand::hardware::Emulation;
 use stagehand::rig::RigSource;
 use stagehand::script::ScriptSource;
 use stagehand::session;
+use stagehand::storage::RunStatus;
 use stagehand_simulator::emulators::{Fault, Faults};
 
 use common::{Outcome, db, raw_pixels, root, run_prepared_with};
@@ -124,7 +125,7 @@ fn assert_no_duplicates(dir: &Path) {
 fn assert_done(o: &Outcome) {
     match &o.result {
         Ok(s) => {
-            assert_eq!(s.status, "done", "{s:?}");
+            assert_eq!(s.status, RunStatus::Done, "{s:?}");
             assert!(
                 s.safety_violations.is_empty(),
                 "motion during exposure: {:?}",

@@ -9,6 +9,7 @@ use std::sync::Arc;
 
 use common::*;
 use stagehand::executor::{AutoConfirm, Event, RunControl};
+use stagehand::storage::RunStatus;
 use stagehand::storage::exr_planes::decode_exr_planes;
 
 const W: u32 = 32;
@@ -218,7 +219,7 @@ fn an_aborted_and_resumed_run_reproduces_frames_and_ground_truth() {
         "the abort left work to do: {partial} of {full}"
     );
     let summary = resume(&interrupted, Arc::new(AutoConfirm)).expect("resume");
-    assert_eq!(summary.status, "done");
+    assert_eq!(summary.status, RunStatus::Done);
     assert_eq!(disk_checksums(&interrupted), disk_checksums(&reference));
     assert_eq!(checksums(&interrupted), checksums(&reference));
     assert_eq!(

@@ -18,6 +18,7 @@ use stagehand::executor::{AutoConfirm, Event, RunControl};
 use stagehand::rig::RigSource;
 use stagehand::script::ScriptSource;
 use stagehand::session;
+use stagehand::storage::RunStatus;
 
 use common::{db, raw_pixels, root, run_prepared_with};
 
@@ -110,7 +111,7 @@ fn quickstart_runs_on_the_real_grbl_firmware() {
             board.traffic()
         ),
     };
-    assert_eq!(summary.status, "done", "{summary:?}");
+    assert_eq!(summary.status, RunStatus::Done, "{summary:?}");
     assert!(summary.safety_violations.is_empty(), "{summary:?}");
     let faults: Vec<&Event> = real
         .events

@@ -10,6 +10,7 @@ use std::sync::Arc;
 use common::*;
 use stagehand::executor::{AutoConfirm, Event, RunControl, Start};
 use stagehand::session::{self, Wiring};
+use stagehand::storage::RunStatus;
 
 /// Runs quickstart on a small rig; `on_event` sees every event with the rig and the control.
 fn quickstart_with(
@@ -136,7 +137,7 @@ fn an_interlock_opened_mid_sweep_pauses_the_run_and_the_step_is_retaken() {
         .result
         .as_ref()
         .expect("the run completes after the resume");
-    assert_eq!(summary.status, "done");
+    assert_eq!(summary.status, RunStatus::Done);
     let w = warnings(&o);
     assert_eq!(w.len(), 1, "one warning: {w:?}");
     assert!(w[0].contains("interlock"), "{}", w[0]);

@@ -4,6 +4,7 @@
 mod common;
 
 use common::*;
+use stagehand::storage::RunStatus;
 
 /// Runs `seq` and checks the dataset against the plan; returns the run directory.
 fn check_sequence(seq: &str, rig: &str, overrides: &[(&str, &str)]) -> std::path::PathBuf {
@@ -24,7 +25,7 @@ fn check_sequence(seq: &str, rig: &str, overrides: &[(&str, &str)]) -> std::path
     let summary = out
         .result
         .unwrap_or_else(|e| panic!("{seq}: run failed: {e}"));
-    assert_eq!(summary.status, "done");
+    assert_eq!(summary.status, RunStatus::Done);
     assert!(
         summary.safety_violations.is_empty(),
         "{seq}: {:?}",

@@ -10,6 +10,7 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 use common::*;
+use stagehand::storage::RunStatus;
 use stagehand::storage::verify::{ProblemKind, verify_run};
 
 const BIN: &str = env!("CARGO_BIN_EXE_stagehand");
@@ -50,7 +51,7 @@ fn damaged_steps_are_found_by_verify_and_repaired_by_a_retake() {
         tmp.path(),
         7,
     );
-    assert_eq!(out.result.expect("quickstart runs").status, "done");
+    assert_eq!(out.result.expect("quickstart runs").status, RunStatus::Done);
     let dir = out.dir;
     let d = dir.to_str().expect("utf-8 path");
 

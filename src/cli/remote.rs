@@ -18,7 +18,7 @@ use tokio::sync::mpsc;
 
 use crate::client::{
     Client, ClientError, DaemonEvent, DryRun, EventKind, EventStream, PromptAnswer, PromptEvent,
-    RunState, StartRun,
+    RunState, StartRun, StoredStatus,
 };
 use crate::executor::Event;
 use crate::units::hms;
@@ -295,8 +295,8 @@ async fn run_remote(args: RemoteRun) -> Result<i32, RemoteError> {
     let mut follow = Follower::new(client, run_id, args.yes, events, interrupts);
     let status = follow.run().await?;
     follow.bar.finish_and_clear();
-    report(&follow.client, &follow.run_id, &status).await;
-    Ok(if status == "done" { 0 } else { 1 })
+    report(&follow.client, &follow.run_id, status).await;
+    Ok(if status == StoredStatus::Done { 0 } else { 1 })
 }
 
 /// What the follower waits for.
@@ -392,7 +392,7 @@ impl Follower {
     }
 
     /// Follows the run until it ends; returns its final status.
-    async fn run(&mut self) -> Result<String, RemoteError> {
+    async fn run(&mut self) -> Result<StoredStatus, RemoteError> {
         let mut failures = 0;
         loop {
             let input = tokio::select! {
@@ -490,7 +490,7 @@ impl Follower {
     }
 
     /// Handles one event; `Some(status)` when the run has ended.
-    async fn on_event(&mut self, ev: DaemonEvent) -> Result<Option<String>, RemoteError> {
+    async fn on_event(&mut self, ev: DaemonEvent) -> Result<Option<StoredStatus>, RemoteError> {
         match ev {
             DaemonEvent::Resync(status) => return self.on_resync(status.run).await,
             DaemonEvent::Warning(w) => self.say(format!("warning: {}", w.message)),
@@ -513,7 +513,7 @@ impl Follower {
         Ok(None)
     }
 
-    fn on_run_event(&mut self, event: Event) -> Option<String> {
+    fn on_run_event(&mut self, event: Event) -> Option<StoredStatus> {
         match event {
             Event::RunStarted {
                 total_steps,
@@ -562,7 +562,7 @@ impl Follower {
                 if let Some(m) = message {
                     self.say(m);
                 }
-                return Some(status);
+                return Some(status.into());
             }
             Event::StepStarted { .. } | Event::StepDurable { .. } | Event::Prompt { .. } => {}
         }
@@ -570,7 +570,10 @@ impl Follower {
     }
 
     /// A `resync` (the stream's first event, or after falling behind): the whole status.
-    async fn on_resync(&mut self, run: Option<RunState>) -> Result<Option<String>, RemoteError> {
+    async fn on_resync(
+        &mut self,
+        run: Option<RunState>,
+    ) -> Result<Option<StoredStatus>, RemoteError> {
         let Some(run) = run.filter(|r| self.ours(&r.run_id)) else {
             // Our run is no longer active: it ended while this client was behind.
             return self.final_status().await.map(Some);
@@ -593,7 +596,7 @@ impl Follower {
     }
 
     /// `Some(final status)` if the run is no longer active (its end was not seen).
-    async fn ended_unseen(&self) -> Result<Option<String>, RemoteError> {
+    async fn ended_unseen(&self) -> Result<Option<StoredStatus>, RemoteError> {
         let active = self.client.active_run().await?;
         if active.is_some_and(|r| self.ours(&r.run_id)) {
             Ok(None)
@@ -603,7 +606,7 @@ impl Follower {
     }
 
     /// The status of the run from `GET /api/runs/{id}` (after it ended unseen).
-    async fn final_status(&self) -> Result<String, RemoteError> {
+    async fn final_status(&self) -> Result<StoredStatus, RemoteError> {
         Ok(self.client.run(&self.run_id).await?.run.status)
     }
 
@@ -670,7 +673,7 @@ impl Follower {
 }
 
 /// Prints the run's summary from `GET /api/runs/{id}`, like a local run's report.
-async fn report(client: &Client, run_id: &str, status: &str) {
+async fn report(client: &Client, run_id: &str, status: StoredStatus) {
     println!("run {status}: {run_id} on {}", client.base());
     match client.run(run_id).await {
         Ok(r) => println!(

@@ -22,8 +22,9 @@ pub use crate::daemon::error::{ErrorBody, ViolationItem};
 pub use crate::daemon::events::{EventKind, HubEvent};
 pub use crate::daemon::operator::PromptInfo;
 pub use crate::daemon::run_start::{StartRun, Started};
-pub use crate::daemon::runs::RunState;
+pub use crate::daemon::runs::{LiveState, RunState};
 pub use crate::daemon::scripts::{BlockEstimate, DryRun, EstimateInfo, ViolationInfo};
+pub use crate::daemon::stored_runs::StoredStatus;
 pub use sse::{DaemonEvent, EventStream, PromptEvent, Resync, RunEvent, SseEvent, WarningEvent};
 
 /// How long connecting may take before the daemon counts as unreachable.

@@ -21,6 +21,7 @@ use super::error::ApiError;
 use super::run_start::{self, StartRun};
 use super::state::AppState;
 use crate::daemon::events::EventKind;
+use crate::storage::RunStatus;
 
 /// Finished items `GET /api/queue` keeps.
 pub const HISTORY: usize = 50;
@@ -49,7 +50,8 @@ pub struct StartedItem {
     /// The run it became.
     pub run_id: String,
     /// `running` while it runs, then how it ended: `done`, `failed` or `aborted`.
-    pub status: String,
+    #[schema(value_type = String)]
+    pub status: RunStatus,
     /// The run's message when it did not end `done`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub message: Option<String>,
@@ -316,7 +318,7 @@ async fn run_item(app: &AppState, mut item: QueueItem) {
         item_id: item.item_id,
         script: started.script.clone(),
         run_id: started.run_id.clone(),
-        status: "running".into(),
+        status: RunStatus::Running,
         message: None,
     };
     app.queue.set_current(Some(record.clone()));
@@ -333,7 +335,7 @@ async fn run_item(app: &AppState, mut item: QueueItem) {
         "run {} (queued item {}) ended {}",
         record.run_id, record.item_id, outcome.status
     );
-    let paused = outcome.status != "done";
+    let paused = outcome.status != RunStatus::Done;
     if paused {
         let cause = if app.estop.is_latched() {
             "the e-stop was pressed: "

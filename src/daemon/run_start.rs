@@ -370,9 +370,9 @@ pub async fn capture(app: &AppState, req: CaptureRequest) -> Result<CaptureResul
     let (active, started) = launch_new(app, reservation, prepared, store, Start::InPlace)?;
     let outcome = active.wait_finished().await;
     let run_id = started.run_id;
-    match outcome.status.as_str() {
-        "done" => {}
-        "aborted" => {
+    match outcome.status {
+        RunStatus::Done => {}
+        RunStatus::Aborted => {
             return Err(
                 ApiError::conflict(format!("the capture was aborted (run {run_id})"))
                     .hint("an abort or the e-stop stopped it; try again when the rig is ready"),

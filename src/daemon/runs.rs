@@ -22,6 +22,7 @@ use super::state::AppState;
 use crate::daemon::events::EventKind;
 use crate::executor::{Answer, Control, Event, RunControl, RunError, Summary};
 use crate::session::{DEFAULT_RESERVE_BYTES, SessionError, Wiring};
+use crate::storage::RunStatus;
 
 /// Executor events buffered for the forwarder before it starts losing them.
 const EVENT_CAPACITY: usize = 4096;
@@ -30,15 +31,28 @@ const MANUAL_WAIT: Duration = Duration::from_secs(10);
 /// How long a finished run waits for its forwarder to publish the last events.
 const FORWARDER_DRAIN: Duration = Duration::from_secs(5);
 
+/// What an active run is doing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum LiveState {
+    /// Steps are executing.
+    Running,
+    /// No new step starts; the current one finishes.
+    Paused,
+    /// Waiting for the operator to answer a prompt.
+    Prompt,
+    /// Aborting to the safe state.
+    Stopping,
+}
+
 /// What the active run is doing, for `GET /api/status`.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct RunState {
     pub run_id: String,
     /// Script file name.
     pub script: String,
-    /// `running`, `paused` (no new step starts; the current one finishes), `prompt` (waiting
-    /// for the operator) or `stopping` (aborting to the safe state).
-    pub state: String,
+    /// What the run is doing now.
+    pub state: LiveState,
     /// The step executing or last executed (none before the first).
     pub step: Option<usize>,
     pub total_steps: usize,
@@ -66,7 +80,7 @@ pub struct RunState {
 #[derive(Debug, Clone)]
 pub struct Outcome {
     /// `done`, `aborted` or `failed`.
-    pub status: String,
+    pub status: RunStatus,
     pub message: Option<String>,
     /// The executor's summary when it got that far.
     pub summary: Option<Summary>,
@@ -82,7 +96,7 @@ struct Progress {
     /// The executor's last ETA and the rig time it was given at.
     eta: Option<(f64, f64)>,
     /// Status and message of the `run_finished` event.
-    finished: Option<(String, Option<String>)>,
+    finished: Option<(RunStatus, Option<String>)>,
 }
 
 /// The run being executed.
@@ -110,10 +124,10 @@ impl ActiveRun {
         let p = self.progress();
         let prompt = self.prompt.pending();
         let state = match self.control.current() {
-            Control::Abort => "stopping",
-            _ if prompt.is_some() => "prompt",
-            Control::Pause => "paused",
-            Control::Run => "running",
+            Control::Abort => LiveState::Stopping,
+            _ if prompt.is_some() => LiveState::Prompt,
+            Control::Pause => LiveState::Paused,
+            Control::Run => LiveState::Running,
         };
         let now = self.clock.now_s();
         let elapsed = (now - self.rig_start_s).max(0.0);
@@ -125,7 +139,7 @@ impl ActiveRun {
         RunState {
             run_id: self.run_id.clone(),
             script: self.script.clone(),
-            state: state.into(),
+            state,
             step: p.step,
             total_steps: p.total_steps,
             steps_done: p.steps_done,
@@ -228,7 +242,7 @@ impl ActiveRun {
             Event::RunFinished {
                 status, message, ..
             } => {
-                p.finished = Some((status.clone(), message.clone()));
+                p.finished = Some((*status, message.clone()));
             }
             Event::Prompt { .. }
             | Event::DeviceFault { .. }
@@ -242,7 +256,7 @@ impl ActiveRun {
 
 fn lost_outcome() -> Outcome {
     Outcome {
-        status: "failed".into(),
+        status: RunStatus::Failed,
         message: Some("the run's task went away without a result".into()),
         summary: None,
     }
@@ -484,15 +498,15 @@ fn outcome_of(
     let reported = active.progress().finished.clone();
     match joined {
         Ok(Ok(summary)) => Outcome {
-            status: summary.status.clone(),
+            status: summary.status,
             message: reported.and_then(|(_, m)| m),
             summary: Some(summary),
         },
         Ok(Err(e)) => {
             let status = match (&reported, &e) {
-                (Some((s, _)), _) => s.clone(),
-                (None, SessionError::Run(RunError::Aborted { .. })) => "aborted".into(),
-                (None, _) => "failed".into(),
+                (Some((s, _)), _) => *s,
+                (None, SessionError::Run(RunError::Aborted { .. })) => RunStatus::Aborted,
+                (None, _) => RunStatus::Failed,
             };
             Outcome {
                 status,
@@ -501,7 +515,7 @@ fn outcome_of(
             }
         }
         Err(e) => Outcome {
-            status: "failed".into(),
+            status: RunStatus::Failed,
             message: Some(format!("the run's task failed: {e}")),
             summary: None,
         },
@@ -512,7 +526,7 @@ fn outcome_of(
 fn finish(app: &AppState, active: &Arc<ActiveRun>, mut outcome: Outcome) {
     let run_id = &active.run_id;
     outcome.message = outcome.message.map(|m| for_api(&m, run_id));
-    if outcome.status != "done" {
+    if outcome.status != RunStatus::Done {
         let message = outcome.message.clone().unwrap_or_default();
         tracing::warn!(run = %run_id, status = %outcome.status, "run ended: {message}");
         app.hub.publish(

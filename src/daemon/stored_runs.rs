@@ -8,7 +8,79 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
+use crate::daemon::runs::LiveState;
 use crate::storage::{Manifest, RunStatus, read_manifest};
+
+/// A run's status as the run list shows it: what its index says, `unreadable`, or, for the
+/// active run, its [`LiveState`], and `interrupted` for a run the index says is running but
+/// nothing executes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum StoredStatus {
+    /// Executing (the index says so; the live state says more).
+    Running,
+    /// Every step is done.
+    Done,
+    /// Stopped by an error.
+    Failed,
+    /// Stopped by the operator.
+    Aborted,
+    /// The index says running but nothing executes it: the daemon stopped mid-run.
+    Interrupted,
+    /// The run directory could not be read.
+    Unreadable,
+    /// The active run is paused.
+    Paused,
+    /// The active run waits at a prompt.
+    Prompt,
+    /// The active run is stopping.
+    Stopping,
+}
+
+impl StoredStatus {
+    /// The serde spelling.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            StoredStatus::Running => "running",
+            StoredStatus::Done => "done",
+            StoredStatus::Failed => "failed",
+            StoredStatus::Aborted => "aborted",
+            StoredStatus::Interrupted => "interrupted",
+            StoredStatus::Unreadable => "unreadable",
+            StoredStatus::Paused => "paused",
+            StoredStatus::Prompt => "prompt",
+            StoredStatus::Stopping => "stopping",
+        }
+    }
+}
+
+impl std::fmt::Display for StoredStatus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl From<RunStatus> for StoredStatus {
+    fn from(s: RunStatus) -> Self {
+        match s {
+            RunStatus::Running => StoredStatus::Running,
+            RunStatus::Done => StoredStatus::Done,
+            RunStatus::Failed => StoredStatus::Failed,
+            RunStatus::Aborted => StoredStatus::Aborted,
+        }
+    }
+}
+
+impl From<LiveState> for StoredStatus {
+    fn from(s: LiveState) -> Self {
+        match s {
+            LiveState::Running => StoredStatus::Running,
+            LiveState::Paused => StoredStatus::Paused,
+            LiveState::Prompt => StoredStatus::Prompt,
+            LiveState::Stopping => StoredStatus::Stopping,
+        }
+    }
+}
 
 /// What a run directory says about its run.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
@@ -16,8 +88,9 @@ pub struct StoredRun {
     pub run_id: String,
     /// Script file name (`""` when unreadable).
     pub script: String,
-    /// `done`, `failed`, `aborted`, `running` (as the index says) or `unreadable`.
-    pub status: String,
+    /// `done`, `failed`, `aborted`, `running` (as the index says) or `unreadable`; in the run
+    /// list, the live state of the active run and `interrupted` for one nothing executes.
+    pub status: StoredStatus,
     /// The index's status message (why a run failed or stopped).
     pub message: Option<String>,
     /// Wall-clock Unix time the run was created (its start).
@@ -53,7 +126,7 @@ pub fn read(dir: &Path) -> StoredRun {
         Err(error) => StoredRun {
             run_id,
             script: String::new(),
-            status: "unreadable".into(),
+            status: StoredStatus::Unreadable,
             message: None,
             created_unix_s: modified_unix_s(dir),
             ended_unix_s: None,
@@ -85,7 +158,7 @@ fn read_inner(dir: &Path, run_id: &str) -> Result<StoredRun, String> {
     Ok(StoredRun {
         run_id: run_id.to_string(),
         script: manifest.script_name.clone(),
-        status: run.status.as_str().to_string(),
+        status: run.status.into(),
         message: run.message,
         created_unix_s: manifest.created_unix_s,
         ended_unix_s,

@@ -5,6 +5,7 @@
 use serde::{Deserialize, Deserializer, Serialize};
 
 use crate::plan::Action;
+use crate::storage::RunStatus;
 
 /// A step kind's name, one of [`Action::KINDS`]. (An alias, not `&'static str` written out,
 /// so that serde does not borrow it from the input: events deserialise from any JSON.)
@@ -69,7 +70,7 @@ pub enum Event {
         device: String,
     },
     RunFinished {
-        status: String,
+        status: RunStatus,
         message: Option<String>,
         rig_time_s: f64,
         elapsed_rig_s: f64,
@@ -111,7 +112,7 @@ mod tests {
                 block: "scan/left".into(),
             },
             Event::RunFinished {
-                status: "done".into(),
+                status: RunStatus::Done,
                 message: None,
                 rig_time_s: 2.0,
                 elapsed_rig_s: 2.0,

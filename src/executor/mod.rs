@@ -59,7 +59,8 @@ pub enum RunError {
 /// What a finished (or stopped) run did.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct Summary {
-    pub status: String,
+    /// How the run ended (`done`, `failed` or `aborted`).
+    pub status: RunStatus,
     pub steps_done: usize,
     pub steps_total: usize,
     pub frames_written: usize,
@@ -164,7 +165,7 @@ impl Execution {
             .collect();
         let rig_time_s = self.rig.clock.now_s();
         let summary = Summary {
-            status: status_name(status).into(),
+            status,
             steps_done: finished.as_ref().map(|f| f.steps_done).unwrap_or(0),
             steps_total,
             frames_written: finished.as_ref().map(|f| f.frames_written).unwrap_or(0),
@@ -173,9 +174,9 @@ impl Execution {
             estimated_rig_time_s: est.rig_time_s,
             safety_violations: violations,
         };
-        telemetry::run_finished(&summary.status);
+        telemetry::run_finished(summary.status.as_str());
         self.emit(Event::RunFinished {
-            status: summary.status.clone(),
+            status: summary.status,
             message: message.clone(),
             rig_time_s,
             elapsed_rig_s: rig_time_s - rig_start,
@@ -571,13 +572,4 @@ pub(crate) fn wall_now() -> f64 {
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_secs_f64())
         .unwrap_or(0.0)
-}
-
-pub(crate) fn status_name(s: RunStatus) -> &'static str {
-    match s {
-        RunStatus::Running => "running",
-        RunStatus::Done => "done",
-        RunStatus::Failed => "failed",
-        RunStatus::Aborted => "aborted",
-    }
 }

@@ -16,6 +16,7 @@ use crate::daemon::operator::PromptInfo;
 use crate::daemon::run_start::{self, CaptureRequest, CaptureResult, StartRun, Started};
 use crate::daemon::runs::{ActiveRun, RunState};
 use crate::daemon::state::AppState;
+use crate::daemon::stored_runs::StoredStatus;
 use crate::daemon::stored_runs::{self, StoredRun};
 use crate::executor::Answer;
 
@@ -64,15 +65,18 @@ fn summarise(run: StoredRun, active: Option<&RunState>) -> RunSummary {
         .map(|m| crate::daemon::runs::for_api(&m, &run.run_id));
     let live = active.filter(|a| a.run_id == run.run_id);
     if let Some(l) = live {
-        run.status = l.state.clone();
+        run.status = l.state.into();
         run.ended_unix_s = None;
         run.duration_s = Some((crate::executor::wall_now() - run.created_unix_s).max(0.0));
-    } else if run.status == "running" {
+    } else if run.status == StoredStatus::Running {
         // The index says running but nothing executes it: the daemon stopped mid-run.
-        run.status = "interrupted".into();
+        run.status = StoredStatus::Interrupted;
     }
-    let resumable =
-        live.is_none() && matches!(run.status.as_str(), "aborted" | "failed" | "interrupted");
+    let resumable = live.is_none()
+        && matches!(
+            run.status,
+            StoredStatus::Aborted | StoredStatus::Failed | StoredStatus::Interrupted
+        );
     RunSummary {
         run,
         active: live.is_some(),
