@@ -572,7 +572,7 @@ fn write_ground_truth(
     let name = frame_file_name(meta);
     truth.check().map_err(|reason| StorageError::InvalidFrame {
         name: name.clone(),
-        reason,
+        reason: reason.to_string(),
     })?;
     if (truth.width, truth.height) != (meta.width, meta.height) {
         return Err(StorageError::InvalidFrame {

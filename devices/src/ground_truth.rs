@@ -29,6 +29,30 @@ pub struct GroundTruthData {
     pub notes: serde_json::Value,
 }
 
+/// What is wrong with a frame's ground truth.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum GroundTruthError {
+    /// Two planes of the same kind.
+    #[error("ground-truth plane `{0}` appears twice")]
+    DuplicatePlane(String),
+    /// A plane without channels or with the wrong number of samples.
+    #[error(
+        "ground-truth plane `{kind}` has {samples} samples for {channels} channels of a {width}x{height} image"
+    )]
+    WrongSize {
+        /// The plane's kind.
+        kind: String,
+        /// Samples it has.
+        samples: usize,
+        /// Channels it names.
+        channels: usize,
+        /// Image width.
+        width: u32,
+        /// Image height.
+        height: u32,
+    },
+}
+
 impl GroundTruthData {
     /// The plane of `kind`, if present.
     pub fn plane(&self, kind: &str) -> Option<&GroundTruthPlane> {
@@ -36,22 +60,21 @@ impl GroundTruthData {
     }
 
     /// Checks that plane kinds are distinct and every plane has at least one channel and
-    /// `width * height * channels` samples; returns a sentence naming the first plane that does not.
-    pub fn check(&self) -> Result<(), String> {
+    /// `width * height * channels` samples; the error names the first plane that does not.
+    pub fn check(&self) -> Result<(), GroundTruthError> {
         let pixels = self.width as usize * self.height as usize;
         for (i, p) in self.planes.iter().enumerate() {
             if self.planes[..i].iter().any(|o| o.kind == p.kind) {
-                return Err(format!("ground-truth plane `{}` appears twice", p.kind));
+                return Err(GroundTruthError::DuplicatePlane(p.kind.clone()));
             }
             if p.channels.is_empty() || p.samples.len() != pixels * p.channels.len() {
-                return Err(format!(
-                    "ground-truth plane `{}` has {} samples for {} channels of a {}x{} image",
-                    p.kind,
-                    p.samples.len(),
-                    p.channels.len(),
-                    self.width,
-                    self.height
-                ));
+                return Err(GroundTruthError::WrongSize {
+                    kind: p.kind.clone(),
+                    samples: p.samples.len(),
+                    channels: p.channels.len(),
+                    width: self.width,
+                    height: self.height,
+                });
             }
         }
         Ok(())

@@ -172,6 +172,39 @@ pub struct Intrinsics {
     pub lens: BrownConrady,
 }
 
+/// Why a lens cannot be inverted uniquely over the image.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum LensError {
+    /// The field of view gives no finite positive focal length.
+    #[error("the field of view gives no usable focal length")]
+    NoFocalLength,
+    /// The radial map stops increasing inside the image.
+    #[error(
+        "the radial distortion folds back at {at_px:.0} px from the principal point, inside the image (corner at {corner_px:.0} px): 1 + k1 r² + k2 r⁴ + k3 r⁶ must stay positive and r·(1 + k1 r² + …) increasing out to the image corner"
+    )]
+    FoldsBack {
+        /// Image radius where it folds, in pixels.
+        at_px: f64,
+        /// Radius of the farthest image corner, in pixels.
+        corner_px: f64,
+    },
+    /// The corner is pulled in beyond 8× its pinhole radius.
+    #[error(
+        "the radial distortion compresses the image corner ({0:.0} px from the principal point) beyond 8× its pinhole radius; use smaller radial coefficients"
+    )]
+    CornerCompressed(f64),
+    /// A pixel where undistortion fails or the map folds.
+    #[error(
+        "the distortion cannot be inverted at pixel ({u:.0}, {v:.0}): the tangential (p1, p2) or radial terms fold the image there; use smaller coefficients"
+    )]
+    NotInvertible {
+        /// Column.
+        u: f64,
+        /// Row.
+        v: f64,
+    },
+}
+
 impl Intrinsics {
     /// The intrinsics of a rig camera.
     pub fn of(spec: &CameraSpec) -> Intrinsics {
@@ -219,15 +252,15 @@ impl Intrinsics {
     /// Checks that the lens can be inverted uniquely over the whole image: the radial map
     /// r·R(r²) stays positive and strictly increasing until it passes the farthest corner, and
     /// every point of a grid over the image undistorts (converging), has a positive Jacobian
-    /// and projects back within 1e-6 px. Returns a sentence on failure.
-    pub fn check(&self) -> Result<(), String> {
+    /// and projects back within 1e-6 px.
+    pub fn check(&self) -> Result<(), LensError> {
         let lens = &self.lens;
         if lens.is_identity() {
             return Ok(());
         }
         let corner = self.corner_radius();
         if !(corner.is_finite() && corner > 0.0) {
-            return Err("the field of view gives no usable focal length".into());
+            return Err(LensError::NoFocalLength);
         }
         // March the undistorted radius outward until its image passes the corner.
         let step = corner / RADIAL_STEPS as f64;
@@ -241,13 +274,10 @@ impl Intrinsics {
             let slope = radial + 2.0 * r2 * lens.radial_slope(r2);
             let image = r * radial;
             if !(radial > 0.0 && slope > 0.0 && image > previous) {
-                return Err(format!(
-                    "the radial distortion folds back at {:.0} px from the principal point, \
-                     inside the image (corner at {:.0} px): 1 + k1 r² + k2 r⁴ + k3 r⁶ must stay \
-                     positive and r·(1 + k1 r² + …) increasing out to the image corner",
-                    image.max(previous) * self.focal_px,
-                    corner * self.focal_px
-                ));
+                return Err(LensError::FoldsBack {
+                    at_px: image.max(previous) * self.focal_px,
+                    corner_px: corner * self.focal_px,
+                });
             }
             previous = image;
             if image > corner * 1.01 {
@@ -255,11 +285,7 @@ impl Intrinsics {
             }
         }
         if previous <= corner {
-            return Err(format!(
-                "the radial distortion compresses the image corner ({:.0} px from the principal \
-                 point) beyond 8× its pinhole radius; use smaller radial coefficients",
-                corner * self.focal_px
-            ));
+            return Err(LensError::CornerCompressed(corner * self.focal_px));
         }
         for j in 0..CHECK_GRID {
             for i in 0..CHECK_GRID {
@@ -271,11 +297,7 @@ impl Intrinsics {
                 let error = (bu - u).hypot(bv - v);
                 let folded = a * d - b * c <= 0.0;
                 if !converged || folded || error.is_nan() || error >= ROUND_TRIP_TOLERANCE_PX {
-                    return Err(format!(
-                        "the distortion cannot be inverted at pixel ({u:.0}, {v:.0}): the \
-                         tangential (p1, p2) or radial terms fold the image there; use smaller \
-                         coefficients"
-                    ));
+                    return Err(LensError::NotInvertible { u, v });
                 }
             }
         }
@@ -363,7 +385,7 @@ mod tests {
             k1: -0.6,
             ..BrownConrady::default()
         };
-        let e = intrinsics(folding).check().unwrap_err();
+        let e = intrinsics(folding).check().unwrap_err().to_string();
         assert!(e.contains("folds back"), "{e}");
         let tangential = BrownConrady {
             p1: 0.6,

@@ -10,7 +10,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use stagehand_devices::cart::{CartDriver, Drive};
-use stagehand_devices::hid_relay::{self, HidRelayBank, HidTransport};
+use stagehand_devices::hid_relay::{self, HidOpenError, HidRelayBank, HidTransport};
 use stagehand_devices::ir_cart::{IrBridgeCart, Output};
 use stagehand_devices::laser::LaserDriver;
 use stagehand_devices::relay_serial::{NumatoBoard, RelaySerialBank};
@@ -623,7 +623,10 @@ async fn hid_bank_reopens_through_its_opener() {
         Box::new(move || {
             opens.fetch_add(1, Ordering::Relaxed);
             if fake.0.lock().unwrap().unplugged {
-                Err("no USB relay board found".to_string())
+                Err(HidOpenError::NotFound {
+                    wanted: None,
+                    found: Vec::new(),
+                })
             } else {
                 Ok(Box::new(fake.clone()) as Box<dyn HidTransport + Send>)
             }

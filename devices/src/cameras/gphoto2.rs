@@ -149,25 +149,54 @@ impl Worker {
         RawFrame {
             sequence: self.count,
             image: data.and_then(|d| {
-                decode(&d).map_err(|m| {
-                    DeviceError::new(self.spec.id.clone(), DeviceErrorKind::Other { message: m })
+                decode(&d).map_err(|e| {
+                    DeviceError::new(
+                        self.spec.id.clone(),
+                        DeviceErrorKind::Other {
+                            message: e.to_string(),
+                        },
+                    )
                 })
             }),
         }
     }
 }
 
+/// Why an image from the camera could not be decoded.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum PpmError {
+    /// Not a binary PPM (`JPEG` or `raw or unknown`).
+    #[error(
+        "the camera delivered a {0} file, which is not decoded; set the camera's image format to one libgphoto2 delivers as PPM, or use a V4L2/GenICam camera"
+    )]
+    NotPpm(&'static str),
+    /// The header is not `P6 width height maxval`.
+    #[error("malformed PPM header")]
+    MalformedHeader,
+    /// A zero size or a maximum beyond 16 bits.
+    #[error("PPM header out of range: {width}×{height}, max {max}")]
+    OutOfRange {
+        /// Width in pixels.
+        width: u32,
+        /// Height in pixels.
+        height: u32,
+        /// Largest sample value.
+        max: u32,
+    },
+    /// Fewer samples than the header says.
+    #[error("PPM data is truncated")]
+    Truncated,
+}
+
 /// Decodes a binary PPM (P6, 8 or 16 bit); anything else is reported as unsupported.
-pub fn decode(data: &[u8]) -> Result<Image, String> {
+pub fn decode(data: &[u8]) -> Result<Image, PpmError> {
     if !data.starts_with(b"P6") {
         let kind = if data.starts_with(&[0xff, 0xd8]) {
             "JPEG"
         } else {
             "raw or unknown"
         };
-        return Err(format!(
-            "the camera delivered a {kind} file, which is not decoded; set the camera's image format to one libgphoto2 delivers as PPM, or use a V4L2/GenICam camera"
-        ));
+        return Err(PpmError::NotPpm(kind));
     }
     // Header: P6 <ws> width <ws> height <ws> maxval <one ws> data; `#` comments.
     let mut fields = Vec::new();
@@ -189,27 +218,31 @@ pub fn decode(data: &[u8]) -> Result<Image, String> {
         let n: u32 = std::str::from_utf8(&data[start..i])
             .ok()
             .and_then(|s| s.parse().ok())
-            .ok_or("malformed PPM header")?;
+            .ok_or(PpmError::MalformedHeader)?;
         fields.push(n);
     }
     if i >= data.len() || !data[i].is_ascii_whitespace() {
-        return Err("malformed PPM header".into());
+        return Err(PpmError::MalformedHeader);
     }
     let body = &data[i + 1..];
     let (w, h, max) = (fields[0], fields[1], fields[2]);
     if w == 0 || h == 0 || max == 0 || max > 65535 {
-        return Err(format!("PPM header out of range: {w}×{h}, max {max}"));
+        return Err(PpmError::OutOfRange {
+            width: w,
+            height: h,
+            max,
+        });
     }
     let samples = w as usize * h as usize * 3;
     let pixels: Vec<u16> = if max < 256 {
         body.get(..samples)
-            .ok_or("PPM data is truncated")?
+            .ok_or(PpmError::Truncated)?
             .iter()
             .map(|&v| u16::from(v))
             .collect()
     } else {
         body.get(..samples * 2)
-            .ok_or("PPM data is truncated")?
+            .ok_or(PpmError::Truncated)?
             .chunks_exact(2)
             .map(|p| u16::from_be_bytes([p[0], p[1]]))
             .collect()
@@ -294,7 +327,7 @@ mod tests {
         assert!(
             decode(&[0xff, 0xd8, 0xff])
                 .err()
-                .is_some_and(|e| e.contains("JPEG"))
+                .is_some_and(|e| e.to_string().contains("JPEG"))
         );
         assert!(decode(b"P6 2 2 255 \x00").is_err());
         assert!(decode(b"P6 0 2 255 ").is_err());

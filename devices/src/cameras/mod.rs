@@ -21,6 +21,52 @@ pub mod v4l;
 /// Conversion of the simple uncompressed pixel formats to [`crate::Frame`]'s interleaved RGB
 /// u16 samples. Compressed (MJPEG) and mosaic (Bayer) formats are not converted here.
 pub mod pixels {
+    use thiserror::Error;
+
+    /// Why a frame's bytes could not be converted.
+    #[derive(Debug, Clone, PartialEq, Eq, Error)]
+    pub enum PixelError {
+        /// A width or height of zero.
+        #[error("empty image {width}×{height}")]
+        Empty {
+            /// Width in pixels.
+            width: u32,
+            /// Height in pixels.
+            height: u32,
+        },
+        /// Rows closer together than a row is long.
+        #[error("row stride {stride} is less than a row ({row_bytes} bytes)")]
+        StrideTooSmall {
+            /// Bytes from one row to the next.
+            stride: usize,
+            /// Bytes of one row's pixels.
+            row_bytes: usize,
+        },
+        /// Fewer bytes than the image needs.
+        #[error("frame of {len} bytes is too short for {width}×{height} ({need} bytes needed)")]
+        TooShort {
+            /// Bytes delivered.
+            len: usize,
+            /// Width in pixels.
+            width: u32,
+            /// Height in pixels.
+            height: u32,
+            /// Bytes needed.
+            need: usize,
+        },
+        /// YUYV pairs pixels, so its width is even.
+        #[error("YUYV needs an even width, got {0}")]
+        OddYuyvWidth(u32),
+        /// A format not converted here; `advice` says why and what to set instead.
+        #[error("pixel format {format} is not supported {advice}")]
+        Unsupported {
+            /// The format as the camera library names it.
+            format: String,
+            /// Why it is not converted and what to set instead.
+            advice: &'static str,
+        },
+    }
+
     /// Checks that `data` holds `height` rows of `stride` bytes with `row_bytes` used each.
     fn check(
         width: u32,
@@ -28,21 +74,21 @@ pub mod pixels {
         stride: usize,
         row_bytes: usize,
         data: &[u8],
-    ) -> Result<(), String> {
+    ) -> Result<(), PixelError> {
         if width == 0 || height == 0 {
-            return Err(format!("empty image {width}×{height}"));
+            return Err(PixelError::Empty { width, height });
         }
         if stride < row_bytes {
-            return Err(format!(
-                "row stride {stride} is less than a row ({row_bytes} bytes)"
-            ));
+            return Err(PixelError::StrideTooSmall { stride, row_bytes });
         }
         let need = stride * (height as usize - 1) + row_bytes;
         if data.len() < need {
-            return Err(format!(
-                "frame of {} bytes is too short for {width}×{height} ({need} bytes needed)",
-                data.len()
-            ));
+            return Err(PixelError::TooShort {
+                len: data.len(),
+                width,
+                height,
+                need,
+            });
         }
         Ok(())
     }
@@ -58,7 +104,12 @@ pub mod pixels {
     }
 
     /// 8-bit grey (V4L2 `GREY`, GenICam `Mono8`) to RGB with equal channels (bit depth 8).
-    pub fn mono8(width: u32, height: u32, stride: usize, data: &[u8]) -> Result<Vec<u16>, String> {
+    pub fn mono8(
+        width: u32,
+        height: u32,
+        stride: usize,
+        data: &[u8],
+    ) -> Result<Vec<u16>, PixelError> {
         let row = width as usize;
         check(width, height, stride, row, data)?;
         Ok(rows(data, height, stride, row)
@@ -73,7 +124,7 @@ pub mod pixels {
         height: u32,
         stride: usize,
         data: &[u8],
-    ) -> Result<Vec<u16>, String> {
+    ) -> Result<Vec<u16>, PixelError> {
         let row = width as usize * 2;
         check(width, height, stride, row, data)?;
         Ok(rows(data, height, stride, row)
@@ -85,7 +136,12 @@ pub mod pixels {
     }
 
     /// Packed 8-bit RGB (V4L2 `RGB3`, GenICam `RGB8`) to RGB u16 (bit depth 8).
-    pub fn rgb24(width: u32, height: u32, stride: usize, data: &[u8]) -> Result<Vec<u16>, String> {
+    pub fn rgb24(
+        width: u32,
+        height: u32,
+        stride: usize,
+        data: &[u8],
+    ) -> Result<Vec<u16>, PixelError> {
         let row = width as usize * 3;
         check(width, height, stride, row, data)?;
         Ok(rows(data, height, stride, row)
@@ -94,7 +150,12 @@ pub mod pixels {
     }
 
     /// Packed 8-bit BGR (V4L2 `BGR3`, GenICam `BGR8`) to RGB u16 (bit depth 8).
-    pub fn bgr24(width: u32, height: u32, stride: usize, data: &[u8]) -> Result<Vec<u16>, String> {
+    pub fn bgr24(
+        width: u32,
+        height: u32,
+        stride: usize,
+        data: &[u8],
+    ) -> Result<Vec<u16>, PixelError> {
         let row = width as usize * 3;
         check(width, height, stride, row, data)?;
         Ok(rows(data, height, stride, row)
@@ -106,9 +167,14 @@ pub mod pixels {
     }
 
     /// YUYV 4:2:2 (V4L2 `YUYV`, most UVC webcams) to RGB, BT.601 limited range (bit depth 8).
-    pub fn yuyv(width: u32, height: u32, stride: usize, data: &[u8]) -> Result<Vec<u16>, String> {
+    pub fn yuyv(
+        width: u32,
+        height: u32,
+        stride: usize,
+        data: &[u8],
+    ) -> Result<Vec<u16>, PixelError> {
         if !width.is_multiple_of(2) {
-            return Err(format!("YUYV needs an even width, got {width}"));
+            return Err(PixelError::OddYuyvWidth(width));
         }
         let row = width as usize * 2;
         check(width, height, stride, row, data)?;
@@ -165,9 +231,24 @@ pub mod pixels {
 
         #[test]
         fn short_or_odd_buffers_are_errors() {
-            assert!(mono8(4, 4, 4, &[0; 15]).unwrap_err().contains("too short"));
-            assert!(rgb24(2, 1, 5, &[0; 6]).unwrap_err().contains("stride"));
-            assert!(yuyv(3, 1, 6, &[0; 6]).unwrap_err().contains("even width"));
+            assert!(
+                mono8(4, 4, 4, &[0; 15])
+                    .unwrap_err()
+                    .to_string()
+                    .contains("too short")
+            );
+            assert!(
+                rgb24(2, 1, 5, &[0; 6])
+                    .unwrap_err()
+                    .to_string()
+                    .contains("stride")
+            );
+            assert!(
+                yuyv(3, 1, 6, &[0; 6])
+                    .unwrap_err()
+                    .to_string()
+                    .contains("even width")
+            );
             assert!(mono16le(0, 1, 0, &[]).is_err());
         }
     }

@@ -18,7 +18,7 @@ use v4l::{Device, Format, FourCC};
 
 use super::HardwareCamera;
 use super::config::{self, TriggerMode};
-use super::pixels;
+use super::pixels::{self, PixelError};
 use super::worker::{Blocking, Image, Link, RawFrame};
 use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::rig::CameraSpec;
@@ -153,7 +153,7 @@ impl Worker {
             width: w,
             height: h,
             bit_depth,
-            pixels: pixels.map_err(|m| self.err(m))?,
+            pixels: pixels.map_err(|e| self.err(e.to_string()))?,
         })
     }
 
@@ -166,11 +166,11 @@ impl Worker {
     }
 }
 
-fn unsupported(fourcc: &[u8; 4]) -> String {
-    format!(
-        "pixel format {} is not supported (MJPEG and Bayer are not converted); set the camera to YUYV, GREY, Y16, RGB3 or BGR3, e.g. `v4l2-ctl --set-fmt-video=pixelformat=YUYV`",
-        String::from_utf8_lossy(fourcc)
-    )
+fn unsupported(fourcc: &[u8; 4]) -> PixelError {
+    PixelError::Unsupported {
+        format: String::from_utf8_lossy(fourcc).into_owned(),
+        advice: "(MJPEG and Bayer are not converted); set the camera to YUYV, GREY, Y16, RGB3 or BGR3, e.g. `v4l2-ctl --set-fmt-video=pixelformat=YUYV`",
+    }
 }
 
 /// Asks for the rig's size in each format we convert, taking the first the device accepts.
@@ -204,7 +204,7 @@ fn negotiate(dev: &Device, spec: &CameraSpec, path: &std::path::Path) -> DeviceR
     Err(DeviceError::new(
         spec.id.clone(),
         DeviceErrorKind::Other {
-            message: unsupported(&last.unwrap_or(*b"????")),
+            message: unsupported(&last.unwrap_or(*b"????")).to_string(),
         },
     ))
 }
@@ -326,7 +326,7 @@ mod tests {
 
     #[test]
     fn unsupported_format_names_the_fix() {
-        let m = unsupported(b"MJPG");
+        let m = unsupported(b"MJPG").to_string();
         assert!(m.contains("MJPG") && m.contains("YUYV"), "{m}");
     }
 

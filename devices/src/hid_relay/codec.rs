@@ -5,6 +5,21 @@
 //! the relay bitmask (relay 1 in bit 0) in byte 7. The report id (0) that hidapi puts in front
 //! of the data is added and removed by [`with_report_id`] / [`data_of`], not here.
 
+use thiserror::Error;
+
+/// A get report too short to hold the board's state.
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+pub enum ReportError {
+    /// hidapi filled fewer bytes than the report id and the data.
+    #[error(
+        "the board returned a {0} byte feature report, expected the report id and {REPORT_LEN} data bytes"
+    )]
+    ShortReport(usize),
+    /// Fewer data bytes than a report has.
+    #[error("feature report has {0} data bytes, expected {REPORT_LEN}")]
+    ShortData(usize),
+}
+
 /// USB vendor id of the boards (shared V-USB id).
 pub const VENDOR_ID: u16 = 0x16c0;
 /// USB product id of the boards.
@@ -70,12 +85,9 @@ pub fn with_report_id(data: [u8; REPORT_LEN]) -> [u8; REPORT_LEN + 1] {
 
 /// The data bytes of a hidapi get-report buffer of which `n` bytes were filled (report id
 /// first); an error if the board returned fewer than 8 data bytes.
-pub fn data_of(buf: &[u8], n: usize) -> Result<&[u8], String> {
+pub fn data_of(buf: &[u8], n: usize) -> Result<&[u8], ReportError> {
     if n < REPORT_LEN + 1 || buf.len() < REPORT_LEN + 1 {
-        return Err(format!(
-            "the board returned a {} byte feature report, expected the report id and {REPORT_LEN} data bytes",
-            n.min(buf.len())
-        ));
+        return Err(ReportError::ShortReport(n.min(buf.len())));
     }
     Ok(&buf[1..=REPORT_LEN])
 }
@@ -91,12 +103,9 @@ pub struct HidState {
 
 impl HidState {
     /// Parses the 8 data bytes of a get report.
-    pub fn parse(data: &[u8]) -> Result<HidState, String> {
+    pub fn parse(data: &[u8]) -> Result<HidState, ReportError> {
         if data.len() < REPORT_LEN {
-            return Err(format!(
-                "feature report has {} data bytes, expected {REPORT_LEN}",
-                data.len()
-            ));
+            return Err(ReportError::ShortData(data.len()));
         }
         let raw = &data[..SERIAL_LEN];
         let end = raw

@@ -10,6 +10,7 @@ use std::ffi::CString;
 use std::io;
 use std::sync::mpsc;
 
+use thiserror::Error;
 use tokio::sync::oneshot;
 
 use super::codec::{
@@ -72,7 +73,7 @@ fn enumerate() -> Vec<(HidRelayInfo, Option<HidapiTransport>)> {
             .map(|device| HidapiTransport { device });
         let serial = transport
             .as_mut()
-            .and_then(|t| read_state(t).ok())
+            .and_then(|t| read_state(t))
             .map(|s| s.serial);
         if serial.is_none() {
             transport = None;
@@ -89,14 +90,47 @@ fn enumerate() -> Vec<(HidRelayInfo, Option<HidapiTransport>)> {
     boards
 }
 
-/// The state report of a board through any transport.
-fn read_state(t: &mut dyn HidTransport) -> Result<HidState, String> {
+/// The state report of a board through any transport; `None` if it cannot be read.
+fn read_state(t: &mut dyn HidTransport) -> Option<HidState> {
     let mut buf = [0u8; REPORT_LEN + 1];
     buf[0] = REPORT_ID;
-    let n = t
-        .get_feature_report(&mut buf)
-        .map_err(|e| format!("get feature report failed: {e}"))?;
-    HidState::parse(codec::data_of(&buf, n)?)
+    let n = t.get_feature_report(&mut buf).ok()?;
+    HidState::parse(codec::data_of(&buf, n).ok()?).ok()
+}
+
+/// Why no board could be opened.
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+pub enum HidOpenError {
+    /// hidapi panicked while listing devices.
+    #[error("enumerating USB HID devices failed (panic in hidapi); check /sys and /dev/hidraw*")]
+    Enumerate,
+    /// The board is there but this user may not open it.
+    #[error(
+        "found the board at {0} but cannot open it; add a udev rule giving your user access to it (e.g. SUBSYSTEM==\"hidraw\", ATTRS{{idVendor}}==\"16c0\", ATTRS{{idProduct}}==\"05df\", MODE=\"0660\", GROUP=\"plugdev\")"
+    )]
+    NoAccess(String),
+    /// No board matches `wanted` (a serial or path; `None`: any board); `found` lists the
+    /// boards there are (`path (serial …)`).
+    #[error("{}", not_found(.wanted.as_deref(), .found))]
+    NotFound {
+        /// The serial or path asked for.
+        wanted: Option<String>,
+        /// The boards found instead.
+        found: Vec<String>,
+    },
+}
+
+/// The message of [`HidOpenError::NotFound`].
+fn not_found(wanted: Option<&str>, found: &[String]) -> String {
+    let what = match wanted {
+        Some(w) => format!("no USB relay board (16c0:05df) with serial or path `{w}`"),
+        None => "no USB relay board (16c0:05df) found".to_string(),
+    };
+    if found.is_empty() {
+        format!("{what}; check the USB cable, `lsusb` and access to /dev/hidraw*")
+    } else {
+        format!("{what}; found: {}", found.join(", "))
+    }
 }
 
 /// The real transport: a hidraw device through hidapi.
@@ -108,12 +142,9 @@ impl HidapiTransport {
     /// Opens a board: `selector` is its 5-character serial, a `/dev/hidrawN` path, or `None`
     /// for the first board found. Returns the transport and what was opened, or a message
     /// saying what was found instead.
-    pub fn open(selector: Option<&str>) -> Result<(Self, HidRelayInfo), String> {
+    pub fn open(selector: Option<&str>) -> Result<(Self, HidRelayInfo), HidOpenError> {
         let want = selector.map(str::trim).filter(|s| !s.is_empty());
-        let boards = std::panic::catch_unwind(enumerate).map_err(|_| {
-            "enumerating USB HID devices failed (panic in hidapi); check /sys and /dev/hidraw*"
-                .to_string()
-        })?;
+        let boards = std::panic::catch_unwind(enumerate).map_err(|_| HidOpenError::Enumerate)?;
         let mut found = Vec::new();
         for (info, transport) in boards {
             let hit = match want {
@@ -123,12 +154,7 @@ impl HidapiTransport {
             };
             match (hit, transport) {
                 (true, Some(t)) => return Ok((t, info)),
-                (true, None) => {
-                    return Err(format!(
-                        "found the board at {} but cannot open it; add a udev rule giving your user access to it (e.g. SUBSYSTEM==\"hidraw\", ATTRS{{idVendor}}==\"16c0\", ATTRS{{idProduct}}==\"05df\", MODE=\"0660\", GROUP=\"plugdev\")",
-                        info.path
-                    ));
-                }
+                (true, None) => return Err(HidOpenError::NoAccess(info.path)),
                 (false, _) => found.push(format!(
                     "{} (serial {})",
                     info.path,
@@ -136,17 +162,10 @@ impl HidapiTransport {
                 )),
             }
         }
-        let what = match want {
-            Some(w) => format!("no USB relay board (16c0:05df) with serial or path `{w}`"),
-            None => "no USB relay board (16c0:05df) found".to_string(),
-        };
-        if found.is_empty() {
-            Err(format!(
-                "{what}; check the USB cable, `lsusb` and access to /dev/hidraw*"
-            ))
-        } else {
-            Err(format!("{what}; found: {}", found.join(", ")))
-        }
+        Err(HidOpenError::NotFound {
+            wanted: want.map(str::to_string),
+            found,
+        })
     }
 }
 
@@ -168,7 +187,7 @@ fn hid_io(e: hidapi::HidError) -> io::Error {
 }
 
 /// Opens (or reopens) the transport; an error is the reason, reported as `PortUnavailable`.
-pub type HidOpener = Box<dyn FnMut() -> Result<Box<dyn HidTransport + Send>, String> + Send>;
+pub type HidOpener = Box<dyn FnMut() -> Result<Box<dyn HidTransport + Send>, HidOpenError> + Send>;
 
 enum Request {
     Set(u32, bool),
@@ -218,7 +237,7 @@ impl HidRelayBank {
                 device.to_string(),
                 DeviceErrorKind::PortUnavailable {
                     port: label.clone(),
-                    reason,
+                    reason: reason.to_string(),
                 },
             )
         })?;
@@ -360,7 +379,7 @@ impl Worker {
                     self.device.clone(),
                     DeviceErrorKind::PortUnavailable {
                         port: self.port.clone(),
-                        reason,
+                        reason: reason.to_string(),
                     },
                 )
             })?;
@@ -471,8 +490,8 @@ impl Worker {
             .transport()?
             .get_feature_report(&mut buf)
             .map_err(|e| self.lost(format!("reading the relay states failed: {e}")))?;
-        let data = codec::data_of(&buf, n).map_err(|m| self.protocol(m))?;
-        HidState::parse(data).map_err(|m| self.protocol(m))
+        let data = codec::data_of(&buf, n).map_err(|e| self.protocol(e.to_string()))?;
+        HidState::parse(data).map_err(|e| self.protocol(e.to_string()))
     }
 
     fn protocol(&self, message: String) -> DeviceError {

@@ -8,4 +8,6 @@ pub mod codec;
 pub mod driver;
 
 pub use codec::{HidCommand, HidState};
-pub use driver::{HidRelayBank, HidRelayInfo, HidTransport, HidapiTransport, list_hid_relays};
+pub use driver::{
+    HidOpenError, HidRelayBank, HidRelayInfo, HidTransport, HidapiTransport, list_hid_relays,
+};

@@ -115,7 +115,7 @@ impl NumatoBoard {
     /// The firmware version (`ver`).
     pub async fn version(&self) -> DeviceResult<String> {
         let text = self.reply_text(Command::Ver).await?;
-        codec::parse_version(&text).map_err(|m| self.protocol(m))
+        codec::parse_version(&text).map_err(|e| self.protocol(e.to_string()))
     }
 
     /// Switches relay `relay` (from 0, as the board numbers them) on or off, and remembers the
@@ -137,7 +137,7 @@ impl NumatoBoard {
     /// Reads the states of relays `0..relays` with `relay readall`, relay 0 first.
     pub async fn read_relays(&self, relays: u32) -> DeviceResult<Vec<bool>> {
         let text = self.reply_text(Command::RelayReadAll).await?;
-        codec::parse_mask(&text, relays).map_err(|m| self.protocol(m))
+        codec::parse_mask(&text, relays).map_err(|e| self.protocol(e.to_string()))
     }
 
     /// Checks that every relay is as last set (nothing to check while all are off: a reset
@@ -179,7 +179,7 @@ impl NumatoBoard {
     /// Reads GPIO line `line` (from 0).
     pub async fn gpio_read(&self, line: u32) -> DeviceResult<bool> {
         let text = self.reply_text(Command::GpioRead(line)).await?;
-        codec::parse_level(&text).map_err(|m| self.protocol(m))
+        codec::parse_level(&text).map_err(|e| self.protocol(e.to_string()))
     }
 
     async fn reply_text(&self, cmd: Command) -> DeviceResult<String> {
@@ -259,7 +259,7 @@ impl NumatoBoard {
         }
         link.discard_input();
         let version = transact(link, Command::Ver).await?.unwrap_or_default();
-        codec::parse_version(&version).map_err(|m| link.protocol(m))?;
+        codec::parse_version(&version).map_err(|e| link.protocol(e.to_string()))?;
         let n = self.connects.fetch_add(1, Ordering::Relaxed) + 1;
         if n == 1 {
             tracing::info!(device = %self.device, port = %self.port, %version, "relay board connected");
@@ -290,7 +290,8 @@ impl NumatoBoard {
         let text = transact(link, Command::RelayReadAll)
             .await?
             .unwrap_or_default();
-        let actual = codec::parse_mask(&text, RELAYS as u32).map_err(|m| link.protocol(m))?;
+        let actual =
+            codec::parse_mask(&text, RELAYS as u32).map_err(|e| link.protocol(e.to_string()))?;
         let lost: Vec<(u32, bool)> = inner
             .wanted
             .iter()
@@ -386,10 +387,12 @@ impl NumatoBoard {
 
 /// One command and its answer up to the prompt, on an open link.
 async fn transact(link: &mut SerialLink, cmd: Command) -> DeviceResult<Option<String>> {
-    let text = cmd.text().map_err(|m| {
+    let text = cmd.text().map_err(|e| {
         DeviceError::new(
             link.device().to_string(),
-            DeviceErrorKind::Other { message: m },
+            DeviceErrorKind::Other {
+                message: e.to_string(),
+            },
         )
     })?;
     let mut bytes = text.clone().into_bytes();
@@ -399,7 +402,7 @@ async fn transact(link: &mut SerialLink, cmd: Command) -> DeviceResult<Option<St
     let raw = link
         .read_until(&[codec::PROMPT], &text, COMMAND_TIMEOUT_S)
         .await?;
-    codec::parse_reply(&raw, &text, cmd.expects_reply()).map_err(|m| link.protocol(m))
+    codec::parse_reply(&raw, &text, cmd.expects_reply()).map_err(|e| link.protocol(e.to_string()))
 }
 
 /// The switch-bank driver of a relay-serial board: channel c (from 1) is relay c−1.

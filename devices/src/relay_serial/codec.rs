@@ -4,6 +4,60 @@
 //! A command is its text followed by `\r`. The board echoes what it receives, then answers
 //! `\n\r`, the reply text (if the command has one) and `\n\r`, then the prompt `>`.
 
+use thiserror::Error;
+
+/// What is wrong with a command to send or an answer of the board.
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+pub enum NumatoError {
+    /// A relay or GPIO index no channel character names.
+    #[error("relay/GPIO index {0} is beyond the board's range 0..={MAX_INDEX}")]
+    IndexOutOfRange(u32),
+    /// A `relay writeall` mask that does not fit its digits.
+    #[error("mask {mask:#x} does not fit in {digits} hex digits (1 to 8)")]
+    MaskTooWide {
+        /// The relay bitmask.
+        mask: u32,
+        /// Hex digits asked for.
+        digits: u8,
+    },
+    /// The answer did not start with the echo of the command.
+    #[error("expected the echo of `{command}`, got `{got}`")]
+    WrongEcho {
+        /// The command sent.
+        command: String,
+        /// The first line of the answer (escaped).
+        got: String,
+    },
+    /// Nothing came before the prompt.
+    #[error("no echo of `{0}` before the prompt")]
+    NoEcho(String),
+    /// A command with a reply got none.
+    #[error("no reply text to `{0}` (the board does not know the command?)")]
+    NoReplyText(String),
+    /// More reply lines than the command has.
+    #[error("unexpected reply text to `{command}`: `{text}`")]
+    UnexpectedReply {
+        /// The command sent.
+        command: String,
+        /// The extra lines joined with ` | ` (escaped).
+        text: String,
+    },
+    /// The reply to `ver` is not a firmware version.
+    #[error(
+        "`ver` answered `{0}`, not an 8-character firmware version; is this a Numato-style relay board?"
+    )]
+    BadVersion(String),
+    /// The reply to `relay readall` is not a hex bitmask.
+    #[error("`relay readall` answered `{0}`, not a hex bitmask of up to 8 digits")]
+    BadMask(String),
+    /// The reply to `relay read N` is not `on` or `off`.
+    #[error("expected `on` or `off`, got `{0}`")]
+    NotOnOff(String),
+    /// The reply to `gpio read N` is not `1` or `0`.
+    #[error("expected `1` or `0`, got `{0}`")]
+    NotLevel(String),
+}
+
 /// End of every command line.
 pub const COMMAND_END: u8 = b'\r';
 /// The prompt that ends every answer of the board.
@@ -66,12 +120,8 @@ pub enum Command {
 impl Command {
     /// The command's text without the line end; an error says why it cannot be sent
     /// (an index beyond `V`, a mask that does not fit its digits).
-    pub fn text(&self) -> Result<String, String> {
-        let idx = |n: u32| {
-            index_char(n).ok_or_else(|| {
-                format!("relay/GPIO index {n} is beyond the board's range 0..={MAX_INDEX}")
-            })
-        };
+    pub fn text(&self) -> Result<String, NumatoError> {
+        let idx = |n: u32| index_char(n).ok_or(NumatoError::IndexOutOfRange(n));
         Ok(match *self {
             Command::Ver => "ver".into(),
             Command::IdGet => "id get".into(),
@@ -81,9 +131,7 @@ impl Command {
             Command::RelayReadAll => "relay readall".into(),
             Command::RelayWriteAll { mask, digits } => {
                 if !(1..=8).contains(&digits) || (digits < 8 && mask >> (4 * digits) != 0) {
-                    return Err(format!(
-                        "mask {mask:#x} does not fit in {digits} hex digits (1 to 8)"
-                    ));
+                    return Err(NumatoError::MaskTooWide { mask, digits });
                 }
                 format!(
                     "relay writeall {mask:0width$x}",
@@ -98,7 +146,7 @@ impl Command {
     }
 
     /// The bytes to send: the text and `\r`.
-    pub fn encode(&self) -> Result<Vec<u8>, String> {
+    pub fn encode(&self) -> Result<Vec<u8>, NumatoError> {
         let mut bytes = self.text()?.into_bytes();
         bytes.push(COMMAND_END);
         Ok(bytes)
@@ -157,7 +205,7 @@ pub fn parse_reply(
     raw: &str,
     command: &str,
     expects_reply: bool,
-) -> Result<Option<String>, String> {
+) -> Result<Option<String>, NumatoError> {
     let mut lines = raw
         .split(['\r', '\n'])
         .map(str::trim)
@@ -165,74 +213,64 @@ pub fn parse_reply(
     match lines.next() {
         Some(echo) if echo == command.trim() => {}
         Some(other) => {
-            return Err(format!(
-                "expected the echo of `{command}`, got `{}`",
-                other.escape_debug()
-            ));
+            return Err(NumatoError::WrongEcho {
+                command: command.to_string(),
+                got: other.escape_debug().to_string(),
+            });
         }
-        None => return Err(format!("no echo of `{command}` before the prompt")),
+        None => return Err(NumatoError::NoEcho(command.to_string())),
     }
     let rest: Vec<&str> = lines.collect();
     match (expects_reply, rest.as_slice()) {
         (true, [reply]) => Ok(Some((*reply).to_string())),
-        (true, []) => Err(format!(
-            "no reply text to `{command}` (the board does not know the command?)"
-        )),
+        (true, []) => Err(NumatoError::NoReplyText(command.to_string())),
         (false, []) => Ok(None),
-        (_, more) => Err(format!(
-            "unexpected reply text to `{command}`: `{}`",
-            more.join(" | ").escape_debug()
-        )),
+        (_, more) => Err(NumatoError::UnexpectedReply {
+            command: command.to_string(),
+            text: more.join(" | ").escape_debug().to_string(),
+        }),
     }
 }
 
 /// Checks the reply to `ver`: 8 letters or digits (`00000008`).
-pub fn parse_version(text: &str) -> Result<String, String> {
+pub fn parse_version(text: &str) -> Result<String, NumatoError> {
     let t = text.trim();
     if t.len() == 8 && t.bytes().all(|b| b.is_ascii_alphanumeric()) {
         Ok(t.to_string())
     } else {
-        Err(format!(
-            "`ver` answered `{}`, not an 8-character firmware version; is this a Numato-style relay board?",
-            t.escape_debug()
-        ))
+        Err(NumatoError::BadVersion(t.escape_debug().to_string()))
     }
 }
 
 /// Parses the hex bitmask of `relay readall` into the states of relays `0..relays`, relay 0
 /// first. Bits beyond `relays` (a bigger board) are ignored.
-pub fn parse_mask(text: &str, relays: u32) -> Result<Vec<bool>, String> {
+pub fn parse_mask(text: &str, relays: u32) -> Result<Vec<bool>, NumatoError> {
     let t = text.trim();
+    let bad = || NumatoError::BadMask(t.escape_debug().to_string());
     if t.is_empty() || t.len() > 8 || !t.bytes().all(|b| b.is_ascii_hexdigit()) {
-        return Err(format!(
-            "`relay readall` answered `{}`, not a hex bitmask of up to 8 digits",
-            t.escape_debug()
-        ));
+        return Err(bad());
     }
-    let mask = u32::from_str_radix(t, 16).map_err(|e| format!("bad relay mask `{t}`: {e}"))?;
+    let mask = u32::from_str_radix(t, 16).map_err(|_| bad())?;
     Ok((0..relays)
         .map(|i| i < 32 && (mask >> i) & 1 == 1)
         .collect())
 }
 
 /// Parses the reply to `relay read N` (`on` / `off`).
-pub fn parse_on_off(text: &str) -> Result<bool, String> {
+pub fn parse_on_off(text: &str) -> Result<bool, NumatoError> {
     match text.trim() {
         t if t.eq_ignore_ascii_case("on") => Ok(true),
         t if t.eq_ignore_ascii_case("off") => Ok(false),
-        t => Err(format!(
-            "expected `on` or `off`, got `{}`",
-            t.escape_debug()
-        )),
+        t => Err(NumatoError::NotOnOff(t.escape_debug().to_string())),
     }
 }
 
 /// Parses the reply to `gpio read N` (`1` / `0`).
-pub fn parse_level(text: &str) -> Result<bool, String> {
+pub fn parse_level(text: &str) -> Result<bool, NumatoError> {
     match text.trim() {
         "1" => Ok(true),
         "0" => Ok(false),
-        t => Err(format!("expected `1` or `0`, got `{}`", t.escape_debug())),
+        t => Err(NumatoError::NotLevel(t.escape_debug().to_string())),
     }
 }
 

@@ -17,7 +17,7 @@ use aravis::{
 
 use super::{GV_BLOCK_IDS, StreamCounters, StreamStats, TRIGGER_LINE, connect, gvcp_probe};
 use crate::cameras::config::{self, TriggerMode};
-use crate::cameras::pixels;
+use crate::cameras::pixels::{self, PixelError};
 use crate::cameras::worker::{Blocking, Image, RawFrame};
 use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::rig::CameraSpec;
@@ -230,7 +230,7 @@ impl Worker {
         let format = cam
             .pixel_format()
             .map_err(|e| self.fail("read PixelFormat", &e))?;
-        convert_pixels(format, 1, 1, 0, &[0; 8]).map_err(|m| self.other(m))?;
+        convert_pixels(format, 1, 1, 0, &[0; 8]).map_err(|e| self.other(e.to_string()))?;
         Ok(())
     }
 
@@ -413,7 +413,7 @@ impl Worker {
         // Single-part image payloads start at offset 0 without line padding (the GenICam
         // default); aravis < 0.8.23 offers no padding query.
         let (pixels, bit_depth) =
-            convert_pixels(format, w, h, 0, data).map_err(|m| self.other(m))?;
+            convert_pixels(format, w, h, 0, data).map_err(|e| self.other(e.to_string()))?;
         Ok(Image {
             width: w,
             height: h,
@@ -436,7 +436,7 @@ fn convert_pixels(
     h: u32,
     pad: usize,
     data: &[u8],
-) -> Result<(Vec<u16>, u8), String> {
+) -> Result<(Vec<u16>, u8), PixelError> {
     let width = w as usize;
     match format {
         PixelFormat::MONO_8 => pixels::mono8(w, h, width + pad, data).map(|p| (p, 8)),
@@ -445,10 +445,10 @@ fn convert_pixels(
         PixelFormat::MONO_16 => pixels::mono16le(w, h, 2 * width + pad, data).map(|p| (p, 16)),
         PixelFormat::RGB_8_PACKED => pixels::rgb24(w, h, 3 * width + pad, data).map(|p| (p, 8)),
         PixelFormat::BGR_8_PACKED => pixels::bgr24(w, h, 3 * width + pad, data).map(|p| (p, 8)),
-        other => Err(format!(
-            "pixel format 0x{:08x} is not supported (Bayer and packed formats are not converted); set PixelFormat to Mono8, Mono10, Mono12, Mono16, RGB8 or BGR8",
-            other.raw()
-        )),
+        other => Err(PixelError::Unsupported {
+            format: format!("0x{:08x}", other.raw()),
+            advice: "(Bayer and packed formats are not converted); set PixelFormat to Mono8, Mono10, Mono12, Mono16, RGB8 or BGR8",
+        }),
     }
 }
 
@@ -582,7 +582,9 @@ mod tests {
 
     #[test]
     fn unsupported_formats_are_named() {
-        let e = convert_pixels(PixelFormat::BAYER_RG_8, 2, 2, 0, &[0; 4]).unwrap_err();
+        let e = convert_pixels(PixelFormat::BAYER_RG_8, 2, 2, 0, &[0; 4])
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("not supported") && e.contains("Mono8"), "{e}");
         assert_eq!(
             convert_pixels(PixelFormat::MONO_12, 1, 1, 0, &[0xff, 0x0f]),
