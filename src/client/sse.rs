@@ -112,7 +112,19 @@ fn bad(ev: &SseEvent, source: serde_json::Error) -> ClientError {
     }
 }
 
-type Events = Pin<Box<dyn Stream<Item = Result<eventsource_stream::Event, String>> + Send>>;
+/// An error of the byte stream under the parser, whatever its type.
+type TransportError = Box<dyn std::error::Error + Send + Sync>;
+
+type Events = Pin<
+    Box<
+        dyn Stream<
+                Item = Result<
+                    eventsource_stream::Event,
+                    eventsource_stream::EventStreamError<TransportError>,
+                >,
+            > + Send,
+    >,
+>;
 
 /// A live `GET /api/events` stream.
 pub struct EventStream {
@@ -141,9 +153,9 @@ impl EventStream {
     where
         S: Stream<Item = Result<B, E>> + Send + 'static,
         B: AsRef<[u8]>,
-        E: std::fmt::Display,
+        E: Into<TransportError>,
     {
-        let events = bytes.eventsource().map(|r| r.map_err(|e| e.to_string()));
+        let events = bytes.map(|r| r.map_err(Into::into)).eventsource();
         Self {
             base,
             events: Box::pin(events),
@@ -161,11 +173,11 @@ impl EventStream {
     pub async fn next_raw(&mut self) -> Option<Result<SseEvent, ClientError>> {
         let ev = match self.events.next().await? {
             Ok(ev) => ev,
-            Err(reason) => {
+            Err(e) => {
                 return Some(Err(ClientError::Stream {
                     base: self.base.clone(),
                     endpoint: "GET /api/events".into(),
-                    reason,
+                    reason: e.to_string(),
                 }));
             }
         };

@@ -42,36 +42,105 @@ pub const ESTOP_PATH: &str = "/api/estop";
 /// The file name of the tokens inside the data directory.
 pub const TOKENS_FILE: &str = "tokens.json";
 
+/// Why the API tokens could not be loaded or created; `path` is the tokens file.
+#[derive(Debug, thiserror::Error)]
+pub enum TokensError {
+    /// The file's permissions cannot be read.
+    #[error("{}: {source}", path.display())]
+    Metadata {
+        /// The tokens file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// Other users may read the file.
+    #[error(
+        "{}: mode {mode:o} lets other users read the API tokens; run `chmod 600 {}`",
+        path.display(),
+        path.display()
+    )]
+    Readable {
+        /// The tokens file.
+        path: PathBuf,
+        /// Its permission bits.
+        mode: u32,
+    },
+    /// The file is not the tokens' JSON.
+    #[error("{}: {source}; fix it or delete it to get new tokens", path.display())]
+    Parse {
+        /// The tokens file.
+        path: PathBuf,
+        /// Why.
+        source: serde_json::Error,
+    },
+    /// A token is too short to be secret.
+    #[error(
+        "{}: tokens must be at least 16 characters; delete the file to get new ones",
+        path.display()
+    )]
+    TooShort {
+        /// The tokens file.
+        path: PathBuf,
+    },
+    /// The operating system gave no random bytes.
+    #[error("no randomness for the API tokens: {0}")]
+    Random(getrandom::Error),
+    /// The new tokens could not be serialised.
+    #[error("{0}")]
+    Serialise(serde_json::Error),
+    /// The file cannot be created.
+    #[error("cannot create {}: {source}", path.display())]
+    Create {
+        /// The tokens file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The file cannot be written.
+    #[error("cannot write {}: {source}", path.display())]
+    Write {
+        /// The tokens file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The file cannot be read.
+    #[error("cannot read {}: {source}", path.display())]
+    Read {
+        /// The tokens file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+}
+
 impl Tokens {
     /// Loads `<data>/tokens.json`, creating it (mode 0600, fresh random tokens) on first start.
     /// A file others can read is refused: the tokens would be worthless.
-    pub fn load_or_create(data_dir: &Path) -> Result<(Tokens, PathBuf, bool), String> {
+    pub fn load_or_create(data_dir: &Path) -> Result<(Tokens, PathBuf, bool), TokensError> {
         let path = data_dir.join(TOKENS_FILE);
         match std::fs::read_to_string(&path) {
             Ok(text) => {
                 let mode = std::fs::metadata(&path)
-                    .map_err(|e| format!("{}: {e}", path.display()))?
+                    .map_err(|source| TokensError::Metadata {
+                        path: path.clone(),
+                        source,
+                    })?
                     .permissions()
                     .mode();
                 if mode & 0o077 != 0 {
-                    return Err(format!(
-                        "{}: mode {:o} lets other users read the API tokens; run `chmod 600 {}`",
-                        path.display(),
-                        mode & 0o777,
-                        path.display()
-                    ));
+                    return Err(TokensError::Readable {
+                        path,
+                        mode: mode & 0o777,
+                    });
                 }
-                let tokens: Tokens = serde_json::from_str(&text).map_err(|e| {
-                    format!(
-                        "{}: {e}; fix it or delete it to get new tokens",
-                        path.display()
-                    )
-                })?;
+                let tokens: Tokens =
+                    serde_json::from_str(&text).map_err(|source| TokensError::Parse {
+                        path: path.clone(),
+                        source,
+                    })?;
                 if tokens.operator.len() < 16 || tokens.read_only.len() < 16 {
-                    return Err(format!(
-                        "{}: tokens must be at least 16 characters; delete the file to get new ones",
-                        path.display()
-                    ));
+                    return Err(TokensError::TooShort { path });
                 }
                 Ok((tokens, path, false))
             }
@@ -80,19 +149,25 @@ impl Tokens {
                     operator: random_token()?,
                     read_only: random_token()?,
                 };
-                let text = serde_json::to_string_pretty(&tokens).map_err(|e| e.to_string())?;
+                let text = serde_json::to_string_pretty(&tokens).map_err(TokensError::Serialise)?;
                 let mut f = std::fs::OpenOptions::new()
                     .write(true)
                     .create_new(true)
                     .mode(0o600)
                     .open(&path)
-                    .map_err(|e| format!("cannot create {}: {e}", path.display()))?;
+                    .map_err(|source| TokensError::Create {
+                        path: path.clone(),
+                        source,
+                    })?;
                 f.write_all(text.as_bytes())
                     .and_then(|()| f.sync_all())
-                    .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+                    .map_err(|source| TokensError::Write {
+                        path: path.clone(),
+                        source,
+                    })?;
                 Ok((tokens, path, true))
             }
-            Err(e) => Err(format!("cannot read {}: {e}", path.display())),
+            Err(source) => Err(TokensError::Read { path, source }),
         }
     }
 
@@ -112,9 +187,9 @@ impl Tokens {
 }
 
 /// 32 random bytes as 64 hex digits.
-fn random_token() -> Result<String, String> {
+fn random_token() -> Result<String, TokensError> {
     let mut bytes = [0u8; 32];
-    getrandom::fill(&mut bytes).map_err(|e| format!("no randomness for the API tokens: {e}"))?;
+    getrandom::fill(&mut bytes).map_err(TokensError::Random)?;
     Ok(bytes.iter().map(|b| format!("{b:02x}")).collect())
 }
 

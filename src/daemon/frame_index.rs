@@ -98,6 +98,38 @@ pub enum FrameIndexError {
     /// The index could not be read (500: the dataset, not the request, is at fault).
     #[error("cannot read the index of run {run}: {reason}")]
     Index { run: String, reason: String },
+    /// The frames of a step could not be read from the index (500).
+    #[error("run {run}: frames of step {step}: {reason}")]
+    StepFrames {
+        run: String,
+        step: usize,
+        reason: String,
+    },
+}
+
+/// Why an index row's path is not a frame file of the run.
+#[derive(Debug, thiserror::Error)]
+pub enum FramePathError {
+    /// Empty, absolute, with `..` or a NUL.
+    #[error("the index path {0:?} is not a plain relative path")]
+    NotPlain(String),
+    /// The run's `frames/` directory cannot be resolved.
+    #[error("the frames directory: {0}")]
+    FramesDir(std::io::Error),
+    /// The path cannot be resolved or its metadata read.
+    #[error("{path}: {source}")]
+    Unreadable {
+        /// The index row's path.
+        path: String,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// It resolves (through a symlink) outside `frames/`.
+    #[error("{0} resolves outside the run's frames directory")]
+    Outside(String),
+    /// A directory or special file.
+    #[error("{0} is not a regular file")]
+    NotAFile(String),
 }
 
 /// Checks that `id` can only name a direct child of the runs directory: 1..=200 characters
@@ -234,7 +266,7 @@ pub fn frame(
             FrameIndexError::FileUnavailable {
                 run: run_id.to_string(),
                 frame_id,
-                reason,
+                reason: reason.to_string(),
             }
         }
     })?;
@@ -303,40 +335,46 @@ pub fn read_verified(info: &FrameInfo, file: &Path) -> Result<Vec<u8>, FrameInde
 
 /// Resolves an index row's `path` inside the canonical run directory `run_dir`: relative,
 /// no `..`, and after resolving symlinks a regular file inside `<run>/frames/`.
-pub fn frame_file(run_dir: &Path, rel: &str) -> Result<PathBuf, String> {
+pub fn frame_file(run_dir: &Path, rel: &str) -> Result<PathBuf, FramePathError> {
     let rel_path = Path::new(rel);
     let plain = rel_path
         .components()
         .all(|c| matches!(c, std::path::Component::Normal(_)));
     if rel.is_empty() || rel.contains('\0') || !plain {
-        return Err(format!(
-            "the index path {rel:?} is not a plain relative path"
-        ));
+        return Err(FramePathError::NotPlain(rel.to_string()));
     }
+    let unreadable = |source| FramePathError::Unreadable {
+        path: rel.to_string(),
+        source,
+    };
     let frames = run_dir
         .join(FRAMES_DIR)
         .canonicalize()
-        .map_err(|e| format!("the frames directory: {e}"))?;
-    let file = run_dir
-        .join(rel_path)
-        .canonicalize()
-        .map_err(|e| format!("{rel}: {e}"))?;
+        .map_err(FramePathError::FramesDir)?;
+    let file = run_dir.join(rel_path).canonicalize().map_err(unreadable)?;
     if !file.starts_with(&frames) {
-        return Err(format!("{rel} resolves outside the run's frames directory"));
+        return Err(FramePathError::Outside(rel.to_string()));
     }
-    let meta = std::fs::metadata(&file).map_err(|e| format!("{rel}: {e}"))?;
+    let meta = std::fs::metadata(&file).map_err(unreadable)?;
     if !meta.is_file() {
-        return Err(format!("{rel} is not a regular file"));
+        return Err(FramePathError::NotAFile(rel.to_string()));
     }
     Ok(file)
 }
 
 /// The frames of `step` in the run at `run_dir` (for `frame` events when the step is durable).
-pub fn frames_of_step(run_dir: &Path, run_id: &str, step: usize) -> Result<Vec<FrameInfo>, String> {
-    let frames = open_index(run_dir, run_id)
-        .map_err(|e| e.to_string())?
+pub fn frames_of_step(
+    run_dir: &Path,
+    run_id: &str,
+    step: usize,
+) -> Result<Vec<FrameInfo>, FrameIndexError> {
+    let frames = open_index(run_dir, run_id)?
         .frames_of_step(step)
-        .map_err(|e| format!("run {run_id}: frames of step {step}: {e}"))?;
+        .map_err(|e| FrameIndexError::StepFrames {
+            run: run_id.to_string(),
+            step,
+            reason: e.to_string(),
+        })?;
     Ok(frames
         .into_iter()
         .map(|f| FrameInfo::new(run_id, f))

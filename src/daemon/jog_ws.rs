@@ -256,7 +256,7 @@ impl<'a> Session<'a> {
             match next_leg(app, j).await {
                 Ok(true) => {}
                 Ok(false) => return self.end(End::Limit).await,
-                Err(e) => return self.end(End::Error(e)).await,
+                Err(e) => return self.end(End::Error(e.to_string())).await,
             }
         }
         let Some(j) = self.jog.as_ref() else { return };
@@ -378,13 +378,22 @@ fn spawn_leg(
     (leg, Trapezoid::plan(from, target, axis.spec().kinematics()))
 }
 
+/// Why a jog's leg failed.
+#[derive(Debug, thiserror::Error)]
+enum LegError {
+    /// The task moving the axis panicked or was cancelled.
+    #[error("the jog task failed: {0}")]
+    Task(tokio::task::JoinError),
+    /// The axis refused or failed the move (worded as the API words it).
+    #[error("{}", manual::device_error(.0).error)]
+    Device(stagehand_devices::DeviceError),
+}
+
 /// The current leg ended: start the next crawl step (`Ok(true)`), or report the limit reached
 /// (`Ok(false)`) or the failure.
-async fn next_leg(app: &AppState, j: &mut Jog) -> Result<bool, String> {
-    let r = (&mut j.leg)
-        .await
-        .map_err(|e| format!("the jog task failed: {e}"))?;
-    let from = r.map_err(|e| manual::device_error(&e).error)?;
+async fn next_leg(app: &AppState, j: &mut Jog) -> Result<bool, LegError> {
+    let r = (&mut j.leg).await.map_err(LegError::Task)?;
+    let from = r.map_err(LegError::Device)?;
     if app.estop.is_latched() || app.runs.is_active() {
         return Ok(false);
     }

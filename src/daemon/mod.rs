@@ -74,8 +74,8 @@ pub enum DaemonError {
     Open(#[from] crate::rig::OpenError),
     #[error("data directory {path}: {reason}")]
     Data { path: String, reason: String },
-    #[error("{0}")]
-    Tokens(String),
+    #[error(transparent)]
+    Tokens(#[from] crate::daemon::auth::TokensError),
     #[error(
         "cannot listen on {addr}: {reason}; is another daemon running? pick another with --listen"
     )]

@@ -630,7 +630,7 @@ async fn publish_frames(app: &AppState, active: &Arc<ActiveRun>, step: usize) {
     })
     .await
     .map_err(|e| e.to_string())
-    .and_then(|r| r);
+    .and_then(|r| r.map_err(|e| e.to_string()));
     match frames {
         Ok(frames) => {
             for f in frames {

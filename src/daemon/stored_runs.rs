@@ -8,8 +8,9 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
+use crate::daemon::frame_index::FrameIndexError;
 use crate::daemon::runs::LiveState;
-use crate::storage::{Manifest, RunStatus, read_manifest};
+use crate::storage::{Manifest, RunStatus, StorageError, read_manifest};
 
 /// A run's status as the run list shows it: what its index says, `unreadable`, or, for the
 /// active run, its [`LiveState`], and `interrupted` for a run the index says is running but
@@ -135,18 +136,29 @@ pub fn read(dir: &Path) -> StoredRun {
             steps_total: 0,
             frames: 0,
             rig_time_s: 0.0,
-            error: Some(error),
+            error: Some(error.to_string()),
             manifest: None,
         },
     }
 }
 
-fn read_inner(dir: &Path, run_id: &str) -> Result<StoredRun, String> {
-    let manifest = read_manifest(dir).map_err(|e| e.to_string())?;
+/// Why a run directory could not be read.
+#[derive(Debug, thiserror::Error)]
+enum ReadError {
+    /// The manifest or the index cannot be read.
+    #[error(transparent)]
+    Storage(#[from] StorageError),
+    /// The index cannot be opened.
+    #[error(transparent)]
+    Index(#[from] FrameIndexError),
+}
+
+fn read_inner(dir: &Path, run_id: &str) -> Result<StoredRun, ReadError> {
+    let manifest = read_manifest(dir)?;
     // Read-only, schema version checked, leaving no `-shm`/`-wal` files behind.
-    let reader = crate::daemon::frame_index::open_index(dir, run_id).map_err(|e| e.to_string())?;
-    let run = reader.run().map_err(|e| e.to_string())?;
-    let journal = reader.journal().map_err(|e| e.to_string())?;
+    let reader = crate::daemon::frame_index::open_index(dir, run_id)?;
+    let run = reader.run()?;
+    let journal = reader.journal()?;
     // A run still `running` in its index either runs now (the caller knows) or was
     // interrupted: then it ended with its last durable step.
     let ended_unix_s = if run.status == RunStatus::Running {
@@ -154,7 +166,7 @@ fn read_inner(dir: &Path, run_id: &str) -> Result<StoredRun, String> {
     } else {
         Some(run.updated_unix_s)
     };
-    let frames = reader.frame_count().map_err(|e| e.to_string())?;
+    let frames = reader.frame_count()?;
     Ok(StoredRun {
         run_id: run_id.to_string(),
         script: manifest.script_name.clone(),
@@ -181,12 +193,27 @@ fn modified_unix_s(dir: &Path) -> f64 {
         .unwrap_or(0.0)
 }
 
+/// The runs directory cannot be listed.
+#[derive(Debug, thiserror::Error)]
+#[error("cannot list {}: {source}", root.display())]
+pub struct ListError {
+    /// The runs directory.
+    pub root: PathBuf,
+    /// Why.
+    pub source: std::io::Error,
+}
+
 /// The run directories under `root` whose names are valid run ids.
-pub fn dirs(root: &Path) -> Result<Vec<PathBuf>, String> {
+pub fn dirs(root: &Path) -> Result<Vec<PathBuf>, ListError> {
     let read = match std::fs::read_dir(root) {
         Ok(r) => r,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
-        Err(e) => return Err(format!("cannot list {}: {e}", root.display())),
+        Err(source) => {
+            return Err(ListError {
+                root: root.to_path_buf(),
+                source,
+            });
+        }
     };
     Ok(read
         .filter_map(|e| e.ok())
@@ -202,7 +229,7 @@ pub fn dirs(root: &Path) -> Result<Vec<PathBuf>, String> {
 }
 
 /// Every run under `root`, newest first.
-pub fn list(root: &Path) -> Result<Vec<StoredRun>, String> {
+pub fn list(root: &Path) -> Result<Vec<StoredRun>, ListError> {
     let mut runs: Vec<StoredRun> = dirs(root)?.iter().map(|d| read(d)).collect();
     runs.sort_by(|a, b| {
         b.created_unix_s

@@ -10,7 +10,9 @@ use tokio::sync::{OwnedSemaphorePermit, Semaphore, broadcast, mpsc, oneshot};
 use super::RunError;
 use super::capture::StepFrames;
 use super::events::Event;
-use crate::storage::{FramePixels, FrameToWrite, RunStatus, RunStore, StepRecord, merge_bracket};
+use crate::storage::{
+    FramePixels, FrameToWrite, RunStatus, RunStore, StepRecord, StorageError, merge_bracket,
+};
 use crate::units::human_bytes;
 
 /// What the writer did by the time the run finished.
@@ -28,7 +30,7 @@ enum Msg {
     Finish(
         RunStatus,
         Option<String>,
-        oneshot::Sender<Result<FinishReport, String>>,
+        oneshot::Sender<Result<FinishReport, StorageError>>,
     ),
 }
 
@@ -125,7 +127,10 @@ impl WriterHandle {
             .send(Msg::Finish(status, message, tx))
             .await
             .map_err(|_| lost())?;
-        let report = rx.await.map_err(|_| lost())?.map_err(RunError::Other)?;
+        let report = rx
+            .await
+            .map_err(|_| lost())?
+            .map_err(|e| RunError::Other(e.to_string()))?;
         self.check()?;
         Ok(report)
     }
@@ -217,8 +222,7 @@ fn writer_loop(
                     .map(|done| FinishReport {
                         steps_done: done.len(),
                         frames_written,
-                    })
-                    .map_err(|e| e.to_string());
+                    });
                 // Release the run (and its lock) before reporting, so a resume can follow at once.
                 drop(store);
                 let _ = reply.send(result);
@@ -246,7 +250,7 @@ fn write_batch(
     for (record, frames, permit) in batch {
         permits.push(permit);
         let step = record.step;
-        let out = prepare_step(frames).map_err(|m| (step, m))?;
+        let out = prepare_step(frames).map_err(|e| (step, e.to_string()))?;
         needed += out
             .iter()
             .map(|f| {
@@ -286,14 +290,14 @@ fn write_batch(
 
 /// Turns a step's captured frames into the files to write, merging HDR brackets. Ground truth
 /// attached to the frames goes beside the first exposure of each camera's bracket.
-fn prepare_step(frames: StepFrames) -> Result<Vec<FrameToWrite>, String> {
+fn prepare_step(frames: StepFrames) -> Result<Vec<FrameToWrite>, StorageError> {
     let mut merged = Vec::with_capacity(frames.hdr.len());
     for (meta, idx, black) in &frames.hdr {
         let bracket: Vec<&stagehand_devices::Frame> = idx
             .iter()
             .filter_map(|&i| frames.frames.get(i).map(|(_, f)| f))
             .collect();
-        let hdr = merge_bracket(&bracket, *black).map_err(|e| e.to_string())?;
+        let hdr = merge_bracket(&bracket, *black)?;
         let mut meta = meta.clone();
         meta.saturated_samples = hdr.saturated_samples;
         merged.push(FrameToWrite {

@@ -126,7 +126,7 @@ impl Builder {
                 "`{name}` is not a valid parameter name; use letters, digits and _ so it can be set with --set NAME=VALUE"
             ));
         }
-        let kind = kind_of(&default).map_err(Fail::Api)?;
+        let kind = kind_of(&default).map_err(|e| Fail::Api(e.to_string()))?;
         let default = normalise(kind, default);
         let default_json = to_json(&default);
         if let Some(d) = self.declared.get(&name) {

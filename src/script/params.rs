@@ -99,14 +99,36 @@ impl Scalar {
     }
 }
 
-/// The kind of a default value, or a sentence saying why it cannot be a parameter default.
-pub(crate) fn kind_of(default: &Dynamic) -> Result<Kind, String> {
+/// Why a value cannot be a parameter default.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub(crate) enum DefaultError {
+    /// An infinite or NaN number.
+    #[error("the default must be a finite number")]
+    NotFinite,
+    /// A list holding something other than integers, numbers, bools or strings.
+    #[error("a list default may only hold integers, numbers, bools or strings")]
+    BadListItem,
+    /// A list holding an infinite or NaN number.
+    #[error("the default list must hold finite numbers")]
+    ListNotFinite,
+    /// A list mixing types (other than integers with numbers).
+    #[error("all items of a list default must have the same type")]
+    MixedList,
+    /// Neither a scalar nor a list; the value is described.
+    #[error(
+        "a parameter default must be an integer, a number, a bool, a string or a list of those, got {0}"
+    )]
+    Unsupported(String),
+}
+
+/// The kind of a default value, or why it cannot be a parameter default.
+pub(crate) fn kind_of(default: &Dynamic) -> Result<Kind, DefaultError> {
     if default.is_int() {
         return Ok(Kind::Int);
     }
     if let Ok(f) = default.as_float() {
         if !f.is_finite() {
-            return Err("the default must be a finite number".into());
+            return Err(DefaultError::NotFinite);
         }
         return Ok(Kind::Float);
     }
@@ -121,14 +143,12 @@ pub(crate) fn kind_of(default: &Dynamic) -> Result<Kind, String> {
         for item in items.iter() {
             let item = item.flatten_clone();
             let Some(s) = Scalar::of(&item) else {
-                return Err(
-                    "a list default may only hold integers, numbers, bools or strings".into(),
-                );
+                return Err(DefaultError::BadListItem);
             };
             if let Ok(f) = item.as_float()
                 && !f.is_finite()
             {
-                return Err("the default list must hold finite numbers".into());
+                return Err(DefaultError::ListNotFinite);
             }
             kind = Some(match (kind, s) {
                 (None, s) => s,
@@ -136,16 +156,13 @@ pub(crate) fn kind_of(default: &Dynamic) -> Result<Kind, String> {
                 (Some(Scalar::Int), Scalar::Float) | (Some(Scalar::Float), Scalar::Int) => {
                     Scalar::Float
                 }
-                _ => return Err("all items of a list default must have the same type".into()),
+                _ => return Err(DefaultError::MixedList),
             });
         }
         // An empty default list takes numbers.
         return Ok(Kind::List(kind.unwrap_or(Scalar::Float)));
     }
-    Err(format!(
-        "a parameter default must be an integer, a number, a bool, a string or a list of those, got {}",
-        describe(default)
-    ))
+    Err(DefaultError::Unsupported(describe(default)))
 }
 
 /// Parses a `--set` value to the given kind; `None` when it does not parse.

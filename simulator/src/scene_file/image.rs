@@ -82,17 +82,80 @@ impl ImageMap {
     }
 }
 
-/// Reads the PNG at `path` as a `kind` map. The error says what is wrong with the file and
-/// how to fix it (it does not name the scene file; the caller adds that).
-pub fn read_png(path: &Path, kind: MapKind) -> Result<ImageMap, String> {
-    let shown = path.display();
-    let file = std::fs::File::open(path).map_err(|e| {
-        format!("cannot open `{shown}`: {e}; check the path (it is relative to the scene file)")
+/// What is wrong with an image file of a scene, and how to fix it (it does not name the scene
+/// file; the caller adds that). `path` is the image's path as shown.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageError {
+    /// The file cannot be opened.
+    #[error("cannot open `{path}`: {source}; check the path (it is relative to the scene file)")]
+    Open {
+        /// The image's path.
+        path: String,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// Its header is not a PNG's.
+    #[error("`{path}` is not a readable PNG: {source}; re-export it as PNG")]
+    NotPng {
+        /// The image's path.
+        path: String,
+        /// Why.
+        source: png::DecodingError,
+    },
+    /// A palette image.
+    #[error("`{path}` is a palette image; save it as {wanted}")]
+    Palette {
+        /// The image's path.
+        path: String,
+        /// What the map needs.
+        wanted: &'static str,
+    },
+    /// A colour type or bit depth the map cannot use.
+    #[error("`{path}` is {bits}-bit {colour}; save it as {wanted}")]
+    WrongFormat {
+        /// The image's path.
+        path: String,
+        /// Its bit depth.
+        bits: u8,
+        /// Its colour type.
+        colour: &'static str,
+        /// What the map needs.
+        wanted: &'static str,
+    },
+    /// Too large to hold in memory.
+    #[error("`{path}` is too large to decode; scale it down")]
+    TooLarge {
+        /// The image's path.
+        path: String,
+    },
+    /// The pixel data cannot be decoded.
+    #[error("`{path}` could not be decoded: {source}; re-export it as PNG")]
+    Undecodable {
+        /// The image's path.
+        path: String,
+        /// Why.
+        source: png::DecodingError,
+    },
+    /// No pixels, or fewer than the header says.
+    #[error("`{path}` has no pixels or is truncated; re-export it")]
+    Truncated {
+        /// The image's path.
+        path: String,
+    },
+}
+
+/// Reads the PNG at `path` as a `kind` map.
+pub fn read_png(path: &Path, kind: MapKind) -> Result<ImageMap, ImageError> {
+    let shown = || path.display().to_string();
+    let file = std::fs::File::open(path).map_err(|source| ImageError::Open {
+        path: shown(),
+        source,
     })?;
     let decoder = png::Decoder::new(BufReader::new(file));
-    let mut reader = decoder
-        .read_info()
-        .map_err(|e| format!("`{shown}` is not a readable PNG: {e}; re-export it as PNG"))?;
+    let mut reader = decoder.read_info().map_err(|source| ImageError::NotPng {
+        path: shown(),
+        source,
+    })?;
     let info = reader.info();
     let (width, height) = (info.width as usize, info.height as usize);
     let (colour, depth) = (info.color_type, info.bit_depth);
@@ -102,10 +165,10 @@ pub fn read_png(path: &Path, kind: MapKind) -> Result<ImageMap, String> {
         ColorType::Rgb => (3, true),
         ColorType::Rgba => (4, true),
         ColorType::Indexed => {
-            return Err(format!(
-                "`{shown}` is a palette image; save it as {}",
-                wanted(kind)
-            ));
+            return Err(ImageError::Palette {
+                path: shown(),
+                wanted: wanted(kind),
+            });
         }
     };
     let ok = match kind {
@@ -114,20 +177,23 @@ pub fn read_png(path: &Path, kind: MapKind) -> Result<ImageMap, String> {
         MapKind::Scalar => !rgb && matches!(depth, BitDepth::Eight | BitDepth::Sixteen),
     };
     if !ok {
-        return Err(format!(
-            "`{shown}` is {}-bit {}; save it as {}",
-            depth as u8,
-            describe(colour),
-            wanted(kind)
-        ));
+        return Err(ImageError::WrongFormat {
+            path: shown(),
+            bits: depth as u8,
+            colour: describe(colour),
+            wanted: wanted(kind),
+        });
     }
     let size = reader
         .output_buffer_size()
-        .ok_or_else(|| format!("`{shown}` is too large to decode; scale it down"))?;
+        .ok_or_else(|| ImageError::TooLarge { path: shown() })?;
     let mut buf = vec![0u8; size];
     let out = reader
         .next_frame(&mut buf)
-        .map_err(|e| format!("`{shown}` could not be decoded: {e}; re-export it as PNG"))?;
+        .map_err(|source| ImageError::Undecodable {
+            path: shown(),
+            source,
+        })?;
     let bytes = &buf[..out.buffer_size()];
     let samples: Vec<f32> = if depth == BitDepth::Sixteen {
         bytes
@@ -150,9 +216,7 @@ pub fn read_png(path: &Path, kind: MapKind) -> Result<ImageMap, String> {
         .flat_map(|px| px[..channels].to_vec())
         .collect();
     if width == 0 || height == 0 || data.len() != width * height * channels {
-        return Err(format!(
-            "`{shown}` has no pixels or is truncated; re-export it"
-        ));
+        return Err(ImageError::Truncated { path: shown() });
     }
     Ok(ImageMap {
         width,
@@ -200,7 +264,9 @@ mod tests {
 
     #[test]
     fn missing_file_says_what_to_do() {
-        let e = read_png(Path::new("/nonexistent/a.png"), MapKind::Scalar).unwrap_err();
+        let e = read_png(Path::new("/nonexistent/a.png"), MapKind::Scalar)
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("/nonexistent/a.png") && e.contains("check the path"),
             "{e}"

@@ -234,7 +234,7 @@ impl Checker<'_> {
     }
 
     fn image(&self, keys: &[&'static str], path: &str, kind: MapKind) -> Result<ImageMap, Problem> {
-        read_png(&(self.resolve)(path), kind).map_err(|e| (at(keys), e))
+        read_png(&(self.resolve)(path), kind).map_err(|e| (at(keys), e.to_string()))
     }
 
     fn shape(&self, s: &SampleSpec) -> Result<Shape, Problem> {

@@ -59,7 +59,7 @@ pub fn parse_obj(text: &str) -> Result<Mesh, ObjError> {
             }
             "f" => {
                 let corners = tokens
-                    .map(|t| corner(t, vertices.len()).map_err(&err))
+                    .map(|t| corner(t, vertices.len()).map_err(|e| err(e.to_string())))
                     .collect::<Result<Vec<usize>, ObjError>>()?;
                 if corners.len() < 3 {
                     return Err(err(format!(
@@ -92,21 +92,40 @@ pub fn parse_obj(text: &str) -> Result<Mesh, ObjError> {
     Ok(mesh)
 }
 
+/// A face corner that names no defined vertex.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+enum CornerError {
+    /// The corner does not start with a number.
+    #[error("face corner `{0}` does not start with a vertex index")]
+    NoIndex(String),
+    /// The index is 0 or beyond the vertices defined so far.
+    #[error(
+        "face corner `{token}` refers to vertex {index}, but {defined} vertices are defined so far"
+    )]
+    Undefined {
+        token: String,
+        index: i64,
+        defined: usize,
+    },
+}
+
 /// The 0-based vertex index of one face corner `i[/t[/n]]` when `defined` vertices exist.
-fn corner(token: &str, defined: usize) -> Result<usize, String> {
+fn corner(token: &str, defined: usize) -> Result<usize, CornerError> {
     let first = token.split('/').next().unwrap_or("");
     let index: i64 = first
         .parse()
-        .map_err(|_| format!("face corner `{token}` does not start with a vertex index"))?;
+        .map_err(|_| CornerError::NoIndex(token.to_string()))?;
     let resolved = if index > 0 {
         index - 1
     } else {
         defined as i64 + index
     };
     if index == 0 || resolved < 0 || resolved >= defined as i64 {
-        return Err(format!(
-            "face corner `{token}` refers to vertex {index}, but {defined} vertices are defined so far"
-        ));
+        return Err(CornerError::Undefined {
+            token: token.to_string(),
+            index,
+            defined,
+        });
     }
     Ok(resolved as usize)
 }

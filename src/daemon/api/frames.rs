@@ -131,7 +131,7 @@ impl From<FrameIndexError> for ApiError {
                 .hint(format!(
                     "limit is 0..={MAX_LIMIT} (default {DEFAULT_LIMIT}); offset and step are non-negative integers"
                 )),
-            FrameIndexError::Index { .. } => ApiError::internal(msg)
+            FrameIndexError::Index { .. } | FrameIndexError::StepFrames { .. } => ApiError::internal(msg)
                 .hint("the run's index.sqlite is unreadable; check the data directory"),
         }
     }

@@ -111,7 +111,7 @@ async fn list_runs(
     let runs = tokio::task::spawn_blocking(move || stored_runs::list(&root))
         .await
         .map_err(|e| ApiError::internal(format!("listing runs stopped: {e}")))?
-        .map_err(ApiError::internal)?;
+        .map_err(|e| ApiError::internal(e.to_string()))?;
     let live = app.runs.snapshot();
     Ok(ApiJson(
         runs.into_iter()
