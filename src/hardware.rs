@@ -21,7 +21,7 @@ use stagehand_devices::rig::{
     AxisSpec, Backend, GRBL_BAUD, RELAY_SERIAL_BAUD, RigSpec, SwitchBankSpec,
 };
 use stagehand_devices::switch_bank::SwitchBankHandle;
-use stagehand_devices::switched::{GpioTrigger, SeriesLaser, SwitchLaser};
+use stagehand_devices::switch_wired::{GpioTrigger, SeriesLaser, SwitchLaser};
 use stagehand_devices::trigger::{TriggerDriver, TriggerHandle};
 use stagehand_devices::{DeviceError, rig::CameraSpec};
 use stagehand_simulator::World;

@@ -30,7 +30,7 @@ use rayon::prelude::*;
 use serde_json::{Value, json};
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, RigSpec, parse_rig};
 use stagehand_simulator::render::Renderer;
-use stagehand_simulator::world_state::{LaserBeam, WorldSnapshot};
+use stagehand_simulator::world_snapshot::{LaserBeam, WorldSnapshot};
 
 /// Environment variable that makes this binary measure one preset and print JSON lines.
 const CHILD_ENV: &str = "STAGEHAND_RENDER_BENCH_CHILD";

@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, BUILTIN_REFLECTOMETER, RigSpec, parse_rig};
 use stagehand_simulator::render::{Rendered, Renderer};
-use stagehand_simulator::world_state::{LaserBeam, WorldSnapshot};
+use stagehand_simulator::world_snapshot::{LaserBeam, WorldSnapshot};
 
 struct View {
     name: &'static str,

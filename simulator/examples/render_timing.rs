@@ -16,7 +16,7 @@ use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, parse_rig};
 use stagehand_simulator::render::Renderer;
 use stagehand_simulator::render::quality::Quality;
 use stagehand_simulator::render::sample::{FIXTURES, Sample};
-use stagehand_simulator::world_state::{LaserBeam, WorldSnapshot};
+use stagehand_simulator::world_snapshot::{LaserBeam, WorldSnapshot};
 
 /// A timed lighting setup: label, fixture, lit lamps with their output, laser on.
 type Setup = (

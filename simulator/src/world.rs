@@ -10,7 +10,7 @@ use stagehand_devices::rig::RigSpec;
 use tokio::sync::broadcast;
 
 use crate::render::Renderer;
-use crate::world_state::{LaserBeam, WorldSnapshot};
+use crate::world_snapshot::{LaserBeam, WorldSnapshot};
 
 /// One trigger pulse on the simulated trigger line.
 #[derive(Debug, Clone, Copy, PartialEq)]

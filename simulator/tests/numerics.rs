@@ -26,7 +26,7 @@ use stagehand_simulator::render::sensor::{self, Sensor};
 use stagehand_simulator::render::shading::{brdf, ward_lobe};
 use stagehand_simulator::render::shadow::{VertexVisibility, shadow_origin};
 use stagehand_simulator::render::{RadianceImage, RenderError, Renderer};
-use stagehand_simulator::world_state::{LaserBeam, WorldSnapshot};
+use stagehand_simulator::world_snapshot::{LaserBeam, WorldSnapshot};
 
 // ---------------------------------------------------------------------------------------------
 // Bounds

@@ -11,7 +11,7 @@ use stagehand_simulator::render::material::Model;
 use stagehand_simulator::render::sample::{Kind, Sample};
 use stagehand_simulator::render::{RenderError, Renderer};
 use stagehand_simulator::scene_file::{BUILTIN_SCENES, load_scene_file};
-use stagehand_simulator::world_state::WorldSnapshot;
+use stagehand_simulator::world_snapshot::WorldSnapshot;
 use tempfile::TempDir;
 
 /// Writes `text` as `name` in `dir` and returns its path.

@@ -16,7 +16,7 @@ use super::geometry::{CameraPose, RigAngles, ToSample};
 use super::material::{Material, Model};
 use super::scene::{Hit, Scene, Shading};
 use super::{RenderError, Renderer, lights};
-use crate::world_state::WorldSnapshot;
+use crate::world_snapshot::WorldSnapshot;
 
 /// Depth of a background pixel (no surface along the pixel-centre ray). Real hits are > 0.
 pub const BACKGROUND_DEPTH: f32 = 0.0;

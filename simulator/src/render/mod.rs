@@ -53,7 +53,7 @@ use stagehand_devices::rig::{CameraSpec, LampKind, RigSpec};
 
 pub use error::RenderError;
 
-use crate::world_state::WorldSnapshot;
+use crate::world_snapshot::WorldSnapshot;
 use geometry::{CameraPose, RigAngles, ToSample};
 use laser::LaserSheet;
 use quality::{Knobs, Quality};

@@ -6,7 +6,7 @@ use glam::Vec3A;
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, BUILTIN_REFLECTOMETER, RigSpec, parse_rig};
 
 use super::*;
-use crate::world_state::LaserBeam;
+use crate::world_snapshot::LaserBeam;
 
 const W: u32 = 64;
 const H: u32 = 48;

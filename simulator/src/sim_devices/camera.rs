@@ -13,7 +13,7 @@ use stagehand_devices::rig::CameraSpec;
 use tokio::sync::broadcast;
 
 use crate::world::{Pulse, World};
-use crate::world_state::WorldSnapshot;
+use crate::world_snapshot::WorldSnapshot;
 
 /// Simulated camera driver.
 pub struct SimCamera {

@@ -8,7 +8,7 @@ use stagehand_devices::rig::{AxisRole, BUILTIN_LIGHTSTAGE, LampKind, RigSpec, pa
 
 use super::TradeoffError;
 use crate::render::{RenderError, Renderer, quality::Quality};
-use crate::world_state::WorldSnapshot;
+use crate::world_snapshot::WorldSnapshot;
 
 /// Largest camera edge accepted, in pixels.
 pub const MAX_EDGE_PX: u32 = 4096;
