@@ -12,8 +12,8 @@ use crate::estimate::{Estimate, estimate};
 use crate::executor::{
     Event, Execution, Operator, RunControl, RunError, Start, Summary, WriterHandle,
 };
-use crate::hardware::Emulation;
 use crate::plan::Plan;
+use crate::rig::Emulation;
 use crate::rig::{Rig, RigSource};
 use crate::script::{ScriptError, ScriptSource, build_plan};
 use crate::storage::checksum::sha256_hex;
@@ -316,7 +316,7 @@ async fn execute(
 pub fn runtime_for(rig: &RigSource) -> std::io::Result<tokio::runtime::Runtime> {
     // Any real driver talks over a port in real time, so only an all-simulated rig may run on
     // the virtual clock.
-    let simulated = !crate::hardware::needs_real_time(&rig.spec);
+    let simulated = !crate::rig::needs_real_time(&rig.spec);
     if simulated {
         tokio::runtime::Builder::new_current_thread()
             .enable_all()
