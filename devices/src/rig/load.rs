@@ -4,8 +4,8 @@
 use std::path::Path;
 
 use thiserror::Error;
-use toml::de::{DeTable, DeValue};
 
+use super::span::{Problem, Seg, at, line_col, locate};
 use super::spec::{CameraSpec, FIXTURES, LampKind, RigSpec};
 use crate::lens::Intrinsics;
 
@@ -63,22 +63,6 @@ pub fn parse_rig(text: &str, origin: &str) -> Result<RigSpec, RigError> {
 /// builds the sample).
 pub fn names_sample(name: &str) -> bool {
     FIXTURES.contains(&name) || name.ends_with(".toml")
-}
-
-/// A step into a TOML document: a key or an index into an array (of tables or values). Paths
-/// of steps name the value an error is about, for [`locate`].
-#[derive(Debug, Clone)]
-pub enum Seg {
-    /// A key of the current table.
-    Key(&'static str),
-    /// An element of the current array.
-    Index(usize),
-}
-
-type Problem = (Vec<Seg>, String);
-
-fn at(table: &'static str, index: usize, key: &'static str) -> Vec<Seg> {
-    vec![Seg::Key(table), Seg::Index(index), Seg::Key(key)]
 }
 
 fn positive(v: f64) -> bool {
@@ -444,49 +428,6 @@ fn check_lens(c: &CameraSpec) -> Result<(), (&'static str, String)> {
         };
         (key, format!("camera `{}`: {reason}", c.id))
     })
-}
-
-/// Byte offset in `text` of the value at `path`, or of the deepest part of it that exists;
-/// `None` when the text does not parse or not even the first step exists.
-pub fn locate(text: &str, path: &[Seg]) -> Option<usize> {
-    let root = DeTable::parse(text).ok()?;
-    let mut best = None;
-    let mut table: &DeTable = root.get_ref();
-    let mut current: Option<&DeValue> = None;
-    for seg in path {
-        let next = match (seg, current) {
-            (Seg::Key(k), None) => table
-                .iter()
-                .find(|(key, _)| key.get_ref() == k)
-                .map(|(_, v)| v),
-            (Seg::Key(k), Some(DeValue::Table(t))) => {
-                t.iter().find(|(key, _)| key.get_ref() == k).map(|(_, v)| v)
-            }
-            (Seg::Index(i), Some(DeValue::Array(a))) => a.get(*i),
-            _ => None,
-        };
-        let Some(next) = next else { break };
-        best = Some(next.span().start);
-        if let DeValue::Table(t) = next.get_ref() {
-            table = t;
-        }
-        current = Some(next.get_ref());
-    }
-    best
-}
-
-/// 1-based line and column (in characters) of a byte offset into `text`.
-pub fn line_col(text: &str, offset: usize) -> (usize, usize) {
-    let offset = offset.min(text.len());
-    let before = &text[..offset];
-    let line = before.matches('\n').count() + 1;
-    let col = before
-        .rsplit('\n')
-        .next()
-        .map(|l| l.chars().count())
-        .unwrap_or(0)
-        + 1;
-    (line, col)
 }
 
 #[cfg(test)]
