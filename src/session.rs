@@ -157,7 +157,9 @@ fn sim_manifest(spec: &stagehand_devices::rig::RigSpec) -> Result<SimManifest, S
         SessionError::Open(crate::rig::OpenError::Simulator(e.to_string()))
     };
     let renderer = Renderer::new(spec).map_err(simulator)?;
-    let p = renderer.provenance(&spec.sim.sample).map_err(simulator)?;
+    let p = renderer
+        .provenance(&renderer.sim().sample)
+        .map_err(simulator)?;
     Ok(SimManifest {
         quality: p.knobs.preset.clone(),
         knobs: serde_json::to_value(&p.knobs).map_err(|e| SessionError::Io(e.to_string()))?,

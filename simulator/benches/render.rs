@@ -29,6 +29,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde_json::{Value, json};
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, RigSpec, parse_rig};
+use stagehand_simulator::config::SimSpec;
 use stagehand_simulator::render::Renderer;
 use stagehand_simulator::world_snapshot::{LaserBeam, WorldSnapshot};
 
@@ -152,8 +153,8 @@ fn print_table(rows: &[Value], peaks: &BTreeMap<String, f64>) {
 /// The built-in light stage at full resolution with the `bumps` sample at `preset`.
 fn rig(preset: &str) -> Result<RigSpec, Box<dyn std::error::Error>> {
     let mut rig = parse_rig(BUILTIN_LIGHTSTAGE, "lightstage.toml")?;
-    rig.sim.sample = "bumps".into();
-    rig.sim.quality = preset.into();
+    SimSpec::edit(&mut rig, |s| s.sample = "bumps".into())?;
+    SimSpec::edit(&mut rig, |s| s.quality = preset.into())?;
     Ok(rig)
 }
 

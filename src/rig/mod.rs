@@ -63,10 +63,13 @@ impl RigSource {
         }
     }
 
-    /// Parses rig text given inline (e.g. the snapshot stored in a run's manifest).
+    /// Parses rig text given inline (e.g. the snapshot stored in a run's manifest): the device
+    /// layer checks the devices, the simulator the `[sim]` table, both at file:line:col.
     pub fn from_text(text: &str, origin: &str) -> Result<RigSource, RigError> {
+        let spec = parse_rig(text, origin)?;
+        stagehand_simulator::config::check_rig(text, origin)?;
         Ok(RigSource {
-            spec: parse_rig(text, origin)?,
+            spec,
             text: text.to_string(),
             origin: origin.to_string(),
         })

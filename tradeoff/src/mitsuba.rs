@@ -25,6 +25,7 @@ use glam::Vec3A;
 use serde_json::json;
 
 use super::{Setup, TradeoffError};
+use stagehand_simulator::config::SimSpec;
 use stagehand_simulator::render::RenderError;
 use stagehand_simulator::render::geometry::{CameraPose, RigAngles, ToSample};
 use stagehand_simulator::render::lights::{self, Emitter, HALOGEN_RADIUS_MM, TURNTABLE_RADIUS_MM};
@@ -227,15 +228,14 @@ pub fn export(
     std::fs::create_dir_all(dir).map_err(|e| TradeoffError::io(dir, e))?;
     let rig = &setup.rig;
     let world = &setup.world;
-    let sample = Sample::build(&world.fixture, rig.sim.sample_size_mm as f32, relief_mm).map_err(
-        |e| match e {
-            RenderError::UnknownFixture(_) => TradeoffError::UnknownScene {
-                scene: world.fixture.clone(),
-                detail: e.to_string(),
-            },
-            other => other.into(),
+    let size_mm = SimSpec::of(rig).map_err(RenderError::from)?.sample_size_mm;
+    let sample = Sample::build(&world.fixture, size_mm as f32, relief_mm).map_err(|e| match e {
+        RenderError::UnknownFixture(_) => TradeoffError::UnknownScene {
+            scene: world.fixture.clone(),
+            detail: e.to_string(),
         },
-    )?;
+        other => other.into(),
+    })?;
     let lambert = sample.max_ks <= 0.0 && sample.media.is_empty();
     if world.laser.is_some() {
         return Err(TradeoffError::Export(

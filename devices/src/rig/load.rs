@@ -1,12 +1,13 @@
 //! Reading rig files: TOML syntax and schema errors and impossible values are all reported at
-//! file:line:col with a sentence saying what is expected.
+//! file:line:col with a sentence saying what is expected. The `[sim]` table is only carried
+//! here; the simulator checks it (`stagehand_simulator::config::check_rig`).
 
 use std::path::Path;
 
 use thiserror::Error;
 
 use super::span::{Problem, Seg, at, line_col, locate};
-use super::spec::{CameraSpec, FIXTURES, LampKind, RigSpec};
+use super::spec::{CameraSpec, LampKind, RigSpec};
 use crate::lens::Intrinsics;
 
 /// A rig file that could not be used.
@@ -32,37 +33,31 @@ pub fn load_rig_file(path: &Path) -> Result<RigSpec, RigError> {
     parse_rig(&text, &path.display().to_string())
 }
 
-/// Parses and checks rig TOML; `origin` names the file in error messages.
+/// Parses and checks rig TOML; `origin` names the file in error messages. The `[sim]` table
+/// is only required to be a table: the simulator checks it (`stagehand_simulator::config`).
 pub fn parse_rig(text: &str, origin: &str) -> Result<RigSpec, RigError> {
     let spec: RigSpec = toml::from_str(text).map_err(|e| {
         let offset = e.span().map(|s| s.start).unwrap_or(0);
-        let (line, col) = line_col(text, offset);
-        let message = e.message().trim().replace('\n', " ");
-        RigError::Invalid {
-            path: origin.to_string(),
-            line,
-            col,
-            message,
-        }
+        RigError::at(text, origin, offset, e.message().trim().replace('\n', " "))
     })?;
     check(&spec).map_err(|(path, message)| {
-        let offset = locate(text, &path).unwrap_or(0);
-        let (line, col) = line_col(text, offset);
-        RigError::Invalid {
-            path: origin.to_string(),
-            line,
-            col,
-            message,
-        }
+        RigError::at(text, origin, locate(text, &path).unwrap_or(0), message)
     })?;
     Ok(spec)
 }
 
-/// Whether `name` can name the sample on the stage: a built-in scene from [`FIXTURES`] or the
-/// path of a scene file ending in `.toml` (whether it exists is checked when the renderer
-/// builds the sample).
-pub fn names_sample(name: &str) -> bool {
-    FIXTURES.contains(&name) || name.ends_with(".toml")
+impl RigError {
+    /// The problem `message` at byte `offset` of the rig file `text`, named `origin`: an
+    /// [`RigError::Invalid`] with its line and column.
+    pub fn at(text: &str, origin: &str, offset: usize, message: impl Into<String>) -> RigError {
+        let (line, col) = line_col(text, offset);
+        RigError::Invalid {
+            path: origin.to_string(),
+            line,
+            col,
+            message: message.into(),
+        }
+    }
 }
 
 fn positive(v: f64) -> bool {
@@ -336,31 +331,6 @@ fn check(spec: &RigSpec) -> Result<(), Problem> {
             ));
         }
     }
-    if !names_sample(&spec.sim.sample) {
-        return Err((
-            vec![Seg::Key("sim"), Seg::Key("sample")],
-            format!(
-                "sim.sample `{}` is unknown; use one of {} or the path of a scene file ending in .toml",
-                spec.sim.sample,
-                FIXTURES.join(", ")
-            ),
-        ));
-    }
-    if !["preview", "standard", "reference"].contains(&spec.sim.quality.as_str()) {
-        return Err((
-            vec![Seg::Key("sim"), Seg::Key("quality")],
-            format!(
-                "sim.quality `{}` is unknown; use preview, standard or reference",
-                spec.sim.quality
-            ),
-        ));
-    }
-    if !positive(spec.sim.sample_size_mm) {
-        return Err((
-            vec![Seg::Key("sim"), Seg::Key("sample_size_mm")],
-            "sim.sample_size_mm must be positive".into(),
-        ));
-    }
     for (i, (id, path)) in ids.iter().enumerate() {
         if id.is_empty()
             || !id
@@ -515,22 +485,6 @@ mod tests {
     fn syntax_error_has_position() {
         let (l, _, _) = err("[rig]\nname = \"x\"\n[[axis]\n");
         assert_eq!(l, 3);
-    }
-
-    #[test]
-    fn sim_sample_names_a_builtin_scene_or_a_toml_path() {
-        let with = |sample: &str| {
-            BUILTIN_LIGHTSTAGE.replacen("sample = \"bumps\"", &format!("sample = \"{sample}\""), 1)
-        };
-        assert!(parse_rig(&with("marble"), "x.toml").is_ok());
-        assert!(parse_rig(&with("scenes/mine.toml"), "x.toml").is_ok());
-        let text = with("teapot");
-        let line = text.lines().position(|l| l.contains("teapot")).unwrap() + 1;
-        let (l, _, m) = err(&text);
-        assert_eq!(l, line);
-        assert!(m.contains("teapot") && m.contains(".toml"), "{m}");
-        assert!(names_sample("cavity") && names_sample("a/b.toml"));
-        assert!(!names_sample("teapot") && !names_sample("b.tom"));
     }
 
     #[test]

@@ -5,7 +5,7 @@ pub mod span;
 mod spec;
 mod wiring;
 
-pub use load::{RigError, load_rig_file, names_sample, parse_rig};
+pub use load::{RigError, load_rig_file, parse_rig};
 pub use spec::*;
 
 /// The built-in simulated light stage (devices/rigs/lightstage.toml), used when no rig is given.

@@ -216,6 +216,7 @@ impl Renderer {
 mod tests {
     use std::collections::BTreeMap;
 
+    use crate::config::SimSpec;
     use stagehand_devices::lens::Intrinsics;
     use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, RigSpec, parse_rig};
 
@@ -227,7 +228,7 @@ mod tests {
             c.width = w;
             c.height = h;
         }
-        rig.sim.sample = fixture.into();
+        SimSpec::edit(&mut rig, |s| s.sample = fixture.into()).expect("sim");
         rig
     }
 

@@ -51,7 +51,7 @@ impl SimCamera {
         &mut self,
         snapshot: &WorldSnapshot,
     ) -> DeviceResult<Option<Arc<GroundTruthData>>> {
-        if !self.world.rig().sim.ground_truth {
+        if !self.world.sim().ground_truth {
             return Ok(None);
         }
         let key = WorldSnapshot {
