@@ -56,7 +56,7 @@ impl GrblControllers {
                 .first()
                 .map(|a| a.id.clone())
                 .or_else(|| spec.laser.as_ref().map(|l| l.id.clone()))
-                .unwrap_or_else(|| "grbl".into());
+                .unwrap_or_else(|| Backend::Grbl.as_str().into());
             let baud = axes.iter().find_map(|a| a.baud).unwrap_or(GRBL_BAUD);
             controllers.insert(
                 port.clone(),

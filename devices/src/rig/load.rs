@@ -487,6 +487,32 @@ mod tests {
         assert_eq!(l, 3);
     }
 
+    const AXIS: &str = "[rig]\nname = \"t\"\n\n[[axis]]\nid = \"turn\"\nbackend = \"grbl\"\nrole = \"turntable\"\nspeed_deg_s = 30.0\naccel_deg_s2 = 60.0\nmin_deg = 0.0\nmax_deg = 360.0\n";
+
+    #[test]
+    fn each_backend_checks_its_own_wiring_at_the_key() {
+        let (l, c, m) = err(AXIS);
+        assert_eq!((l, c), (6, 11));
+        assert!(m.contains("backend `grbl` needs `port`"), "{m}");
+        let ported = format!("{AXIS}port = \"/dev/ttyACM0\"\n");
+        let (l, _, m) = err(&ported);
+        assert_eq!(l, 6);
+        assert!(m.contains("controller_axis"), "{m}");
+        let ok = format!("{ported}controller_axis = \"X\"\n");
+        assert!(parse_rig(&ok, "x.toml").is_ok());
+        let hid = "[rig]\nname = \"t\"\n\n[[switch_bank]]\nid = \"b\"\nbackend = \"hid-relay\"\nchannels = 9\n";
+        let (l, c, m) = err(hid);
+        assert_eq!((l, c), (7, 12));
+        assert!(m.contains("at most 8 relays"), "{m}");
+        let camera = AXIS.replace("\"grbl\"", "\"v4l\"");
+        let (l, _, m) = err(&camera);
+        assert_eq!(l, 6);
+        assert!(
+            m.contains("cannot drive this kind of device; use one of sim, grbl"),
+            "{m}"
+        );
+    }
+
     #[test]
     fn missing_file_names_path() {
         let e = load_rig_file(Path::new("/nonexistent/rig.toml")).unwrap_err();

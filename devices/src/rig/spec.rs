@@ -37,9 +37,9 @@ pub struct RigInfo {
     pub description: String,
 }
 
-/// Which driver talks to a device. `sim` is the built-in simulated backend.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
+/// Which driver talks to a device. `sim` is the built-in simulated backend. Rig files, JSON
+/// and messages spell it as [`Backend::as_str`] does (serde goes through it too).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Backend {
     Sim,
     Grbl,
@@ -56,8 +56,34 @@ pub enum Backend {
 }
 
 impl Backend {
-    /// The name a rig file uses (`relay-serial`, `grbl`, …).
-    pub fn as_str(self) -> &'static str {
+    /// Every backend.
+    pub const ALL: [Backend; 10] = [
+        Backend::Sim,
+        Backend::Grbl,
+        Backend::RelaySerial,
+        Backend::HidRelay,
+        Backend::IrBridge,
+        Backend::V4l,
+        Backend::Aravis,
+        Backend::Gphoto2,
+        Backend::Switch,
+        Backend::Software,
+    ];
+
+    /// Every backend's name, in the order of [`Backend::ALL`] (for "expected one of" errors).
+    pub const NAMES: [&'static str; 10] = {
+        let mut names = [""; 10];
+        let mut i = 0;
+        while i < names.len() {
+            names[i] = Backend::ALL[i].as_str();
+            i += 1;
+        }
+        names
+    };
+
+    /// The name a rig file uses (`relay-serial`, `grbl`, …): the one spelling of backend
+    /// names.
+    pub const fn as_str(self) -> &'static str {
         match self {
             Backend::Sim => "sim",
             Backend::Grbl => "grbl",
@@ -70,6 +96,22 @@ impl Backend {
             Backend::Switch => "switch",
             Backend::Software => "software",
         }
+    }
+}
+
+impl Serialize for Backend {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(self.as_str())
+    }
+}
+
+impl<'de> Deserialize<'de> for Backend {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        let name = String::deserialize(deserializer)?;
+        Backend::ALL
+            .into_iter()
+            .find(|b| b.as_str() == name)
+            .ok_or_else(|| serde::de::Error::unknown_variant(&name, &Backend::NAMES))
     }
 }
 
@@ -457,5 +499,21 @@ impl LaserWatchdog {
             LaserWatchdog::Simulated => "simulated laser".into(),
             LaserWatchdog::None(why) => format!("no watchdog: {why}"),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn backends_read_and_write_as_their_names() {
+        for b in Backend::ALL {
+            let json = serde_json::to_string(&b).expect("serialises");
+            assert_eq!(json, format!("\"{}\"", b.as_str()));
+            assert_eq!(serde_json::from_str::<Backend>(&json).expect("reads"), b);
+        }
+        let e = serde_json::from_str::<Backend>("\"relay_serial\"").expect_err("unknown");
+        assert!(e.to_string().contains("relay-serial"), "{e}");
     }
 }
