@@ -29,8 +29,8 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde_json::{Value, json};
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, RigSpec, parse_rig};
-use stagehand_simulator::config::SimSpec;
 use stagehand_simulator::render::Renderer;
+use stagehand_simulator::render::config::SimSpec;
 use stagehand_simulator::world_snapshot::{LaserBeam, WorldSnapshot};
 
 /// Environment variable that makes this binary measure one preset and print JSON lines.

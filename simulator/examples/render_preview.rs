@@ -14,7 +14,7 @@ use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, BUILTIN_REFLECTOMETER, RigSpec, parse_rig};
-use stagehand_simulator::config::SimSpec;
+use stagehand_simulator::render::config::SimSpec;
 use stagehand_simulator::render::{Rendered, Renderer};
 use stagehand_simulator::world_snapshot::{LaserBeam, WorldSnapshot};
 

@@ -13,8 +13,8 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, parse_rig};
-use stagehand_simulator::config::SimSpec;
 use stagehand_simulator::render::Renderer;
+use stagehand_simulator::render::config::SimSpec;
 use stagehand_simulator::render::quality::Quality;
 use stagehand_simulator::render::sample::{FIXTURES, Sample};
 use stagehand_simulator::world_snapshot::{LaserBeam, WorldSnapshot};

@@ -3,7 +3,6 @@
 
 #![deny(unsafe_code)]
 
-pub mod config;
 pub mod emulators;
 pub mod materials;
 pub mod render;

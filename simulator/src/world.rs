@@ -9,8 +9,8 @@ use stagehand_devices::motion::Trapezoid;
 use stagehand_devices::rig::RigSpec;
 use tokio::sync::broadcast;
 
-use crate::config::SimSpec;
 use crate::render::Renderer;
+use crate::render::config::SimSpec;
 use crate::world_snapshot::{LaserBeam, WorldSnapshot};
 
 /// One trigger pulse on the simulated trigger line.

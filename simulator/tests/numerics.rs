@@ -13,11 +13,11 @@ use std::f64::consts::{FRAC_1_PI, FRAC_PI_2, PI};
 use glam::{DVec3, Vec3A};
 use proptest::prelude::*;
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, RigSpec, parse_rig};
-use stagehand_simulator::config::SimSpec;
 use stagehand_simulator::materials::{
     self, Dipole, Fresnel, blinn_phong, cook_torrance_ggx, cook_torrance_ggx_f32, lambert,
     total_diffuse_reflectance, ward_aniso, ward_aniso_f32, ward_iso,
 };
+use stagehand_simulator::render::config::SimSpec;
 use stagehand_simulator::render::geometry::{CameraPose, ToSample};
 use stagehand_simulator::render::heightfield::HeightGrid;
 use stagehand_simulator::render::lights::{HALOGEN_RADIUS_MM, HALOGEN_RGB, REFERENCE_DISTANCE_MM};

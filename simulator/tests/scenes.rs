@@ -7,7 +7,7 @@ use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, parse_rig};
-use stagehand_simulator::config::{FIXTURES, SimSpec};
+use stagehand_simulator::render::config::{FIXTURES, SimSpec};
 use stagehand_simulator::render::material::Model;
 use stagehand_simulator::render::sample::{Kind, Sample};
 use stagehand_simulator::render::{RenderError, Renderer};

@@ -52,7 +52,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use serde::{Deserialize, Serialize};
 use stagehand_devices::motion;
 use stagehand_devices::rig::RigSpec;
-use stagehand_simulator::config::SimSpec;
+use stagehand_simulator::render::config::SimSpec;
 
 use crate::plan::{Action, Plan};
 
@@ -709,7 +709,7 @@ pub(crate) mod test_rigs {
         if let Some(l) = &mut rig.laser {
             (l.colours_nm, l.fitted_nm, l.mount_elevation_deg) = (vec![650, 532, 473], 650, 45.0);
         }
-        stagehand_simulator::config::SimSpec::edit(&mut rig, |s| s.sample = "bumps".into())
+        stagehand_simulator::render::config::SimSpec::edit(&mut rig, |s| s.sample = "bumps".into())
             .unwrap();
         rig
     }

@@ -67,7 +67,7 @@ impl RigSource {
     /// layer checks the devices, the simulator the `[sim]` table, both at file:line:col.
     pub fn from_text(text: &str, origin: &str) -> Result<RigSource, RigError> {
         let spec = parse_rig(text, origin)?;
-        stagehand_simulator::config::check_rig(text, origin)?;
+        stagehand_simulator::render::config::check_rig(text, origin)?;
         Ok(RigSource {
             spec,
             text: text.to_string(),

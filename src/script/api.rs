@@ -6,7 +6,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 
 use rhai::{Dynamic, Engine, EvalAltResult, FnPtr, ImmutableString, Map, NativeCallContext};
 use stagehand_devices::rig::{LampKind, RigSpec};
-use stagehand_simulator::config::SimSpec;
+use stagehand_simulator::render::config::SimSpec;
 
 use super::error::ScriptError;
 use super::params::{describe, kind_of, normalise, parse_value, to_json, valid_name};

@@ -13,7 +13,7 @@ use stagehand_devices::rig::{CameraSpec, RigSpec};
 
 use crate::estimate::{MAX_WAIT_S, RigState};
 use crate::plan::{Action, Plan, SourcePos, Step};
-use stagehand_simulator::config::{FIXTURES, names_sample};
+use stagehand_simulator::render::config::{FIXTURES, names_sample};
 
 /// How bad a [`Violation`] is.
 #[derive(Debug, Clone, PartialEq, Serialize)]

@@ -25,8 +25,8 @@ use glam::Vec3A;
 use serde_json::json;
 
 use super::{Setup, TradeoffError};
-use stagehand_simulator::config::SimSpec;
 use stagehand_simulator::render::RenderError;
+use stagehand_simulator::render::config::SimSpec;
 use stagehand_simulator::render::geometry::{CameraPose, RigAngles, ToSample};
 use stagehand_simulator::render::lights::{self, Emitter, HALOGEN_RADIUS_MM, TURNTABLE_RADIUS_MM};
 use stagehand_simulator::render::sample::Sample;

@@ -1,6 +1,6 @@
 //! Reading rig files: TOML syntax and schema errors and impossible values are all reported at
 //! file:line:col with a sentence saying what is expected. The `[sim]` table is only carried
-//! here; the simulator checks it (`stagehand_simulator::config::check_rig`).
+//! here; the simulator checks it (`stagehand_simulator::render::config::check_rig`).
 
 use std::path::Path;
 
@@ -34,7 +34,7 @@ pub fn load_rig_file(path: &Path) -> Result<RigSpec, RigError> {
 }
 
 /// Parses and checks rig TOML; `origin` names the file in error messages. The `[sim]` table
-/// is only required to be a table: the simulator checks it (`stagehand_simulator::config`).
+/// is only required to be a table: the simulator checks it (`stagehand_simulator::render::config`).
 pub fn parse_rig(text: &str, origin: &str) -> Result<RigSpec, RigError> {
     let spec: RigSpec = toml::from_str(text).map_err(|e| {
         let offset = e.span().map(|s| s.start).unwrap_or(0);

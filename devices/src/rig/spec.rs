@@ -424,7 +424,7 @@ fn default_pf_speed() -> u8 {
 
 /// The rig file's `[sim]` table (the simulated rig's settings: the sample on the stage, the
 /// renderer's quality and knobs, ground truth), kept as raw TOML. The simulator owns its schema
-/// and checks it (`stagehand_simulator::config`), at file:line:col through
+/// and checks it (`stagehand_simulator::render::config`), at file:line:col through
 /// [`super::span::locate`]; the device layer only carries it, so it knows no renderer setting.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(transparent)]

@@ -26,7 +26,7 @@ pub enum RenderError {
     Scene(#[from] crate::scene_file::SceneError),
     /// The rig's `[sim]` table does not read (unknown key, wrong type).
     #[error(transparent)]
-    Sim(#[from] crate::config::SimError),
+    Sim(#[from] crate::render::config::SimError),
     /// The rig's `sim.quality` is not a preset the renderer knows.
     #[error("sim.quality `{0}` is unknown; set it to preview, standard or reference")]
     UnknownQuality(String),

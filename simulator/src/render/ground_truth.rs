@@ -216,7 +216,7 @@ impl Renderer {
 mod tests {
     use std::collections::BTreeMap;
 
-    use crate::config::SimSpec;
+    use crate::render::config::SimSpec;
     use stagehand_devices::lens::Intrinsics;
     use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, RigSpec, parse_rig};
 

@@ -21,6 +21,7 @@
 //! cameras do) or from inside the rayon pool, not from both at once.
 
 pub mod bounce;
+pub mod config;
 pub mod effects;
 pub mod error;
 pub mod fft;
@@ -53,7 +54,7 @@ use stagehand_devices::rig::{CameraSpec, LampKind, RigSpec};
 
 pub use error::RenderError;
 
-use crate::config::SimSpec;
+use crate::render::config::SimSpec;
 use crate::world_snapshot::WorldSnapshot;
 use geometry::{CameraPose, RigAngles, ToSample};
 use laser::LaserSheet;

@@ -2,7 +2,7 @@
 
 use std::collections::BTreeMap;
 
-use crate::config::SimSpec;
+use crate::render::config::SimSpec;
 use glam::Vec3A;
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, BUILTIN_REFLECTOMETER, RigSpec, parse_rig};
 

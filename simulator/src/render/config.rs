@@ -3,14 +3,15 @@
 //! (a built-in scene from [`FIXTURES`] or a scene file), its size, the renderer's quality
 //! preset and knob overrides, and whether ground truth is written. [`check_rig`] reports a
 //! problem at file:line:col like every other rig-file error; [`SimSpec::of`] reads the table of
-//! a rig already checked or built in code.
+//! a rig already checked or built in code. It sits in `render` because the renderer reads it
+//! (`Renderer::new`) and it reads the renderer's presets and knobs: one module, no cycle.
 
 use serde::{Deserialize, Serialize};
 use stagehand_devices::rig::span::{Problem, Seg, key, locate};
 use stagehand_devices::rig::{RigError, RigSpec, SimTable};
 
-use crate::render::RenderError;
-use crate::render::quality::{Knobs, Quality, SimKnobs};
+use super::RenderError;
+use super::quality::{Knobs, Quality, SimKnobs};
 pub use crate::scene_file::builtin::FIXTURES;
 
 /// Simulation settings (`[sim]`): the sample on the stage and the renderer's quality.
