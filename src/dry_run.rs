@@ -125,7 +125,7 @@ pub fn renderer_line(rig: &RigSpec) -> Option<String> {
     if rig.cameras.is_empty() || rig.cameras.iter().any(|c| c.backend != Backend::Sim) {
         return None;
     }
-    let line = Renderer::new(rig).and_then(|r| r.summary_line(&rig.sim.sample));
+    let line = Renderer::new(rig).and_then(|r| r.summary_line(&r.sim().sample));
     Some(line.unwrap_or_else(|e| format!("cannot be set up: {e}")))
 }
 

@@ -7,16 +7,13 @@
 
 #![deny(unsafe_code)]
 
-mod camera_backends;
 pub mod cli;
 pub mod client;
 pub mod daemon;
 pub mod dry_run;
 pub mod estimate;
 pub mod executor;
-pub mod hardware;
 pub mod plan;
-pub mod port_lock;
 pub mod rig;
 pub mod script;
 pub mod session;

@@ -12,8 +12,8 @@ use crate::estimate::{Estimate, estimate};
 use crate::executor::{
     Event, Execution, Operator, RunControl, RunError, Start, Summary, WriterHandle,
 };
-use crate::hardware::Emulation;
 use crate::plan::Plan;
+use crate::rig::Emulation;
 use crate::rig::{Rig, RigSource};
 use crate::script::{ScriptError, ScriptSource, build_plan};
 use crate::storage::checksum::sha256_hex;
@@ -157,7 +157,9 @@ fn sim_manifest(spec: &stagehand_devices::rig::RigSpec) -> Result<SimManifest, S
         SessionError::Open(crate::rig::OpenError::Simulator(e.to_string()))
     };
     let renderer = Renderer::new(spec).map_err(simulator)?;
-    let p = renderer.provenance(&spec.sim.sample).map_err(simulator)?;
+    let p = renderer
+        .provenance(&renderer.sim().sample)
+        .map_err(simulator)?;
     Ok(SimManifest {
         quality: p.knobs.preset.clone(),
         knobs: serde_json::to_value(&p.knobs).map_err(|e| SessionError::Io(e.to_string()))?,
@@ -316,7 +318,7 @@ async fn execute(
 pub fn runtime_for(rig: &RigSource) -> std::io::Result<tokio::runtime::Runtime> {
     // Any real driver talks over a port in real time, so only an all-simulated rig may run on
     // the virtual clock.
-    let simulated = !crate::hardware::needs_real_time(&rig.spec);
+    let simulated = !crate::rig::needs_real_time(&rig.spec);
     if simulated {
         tokio::runtime::Builder::new_current_thread()
             .enable_all()

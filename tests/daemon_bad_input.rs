@@ -964,7 +964,7 @@ async fn a_second_opener_of_the_daemons_ports_is_told_to_use_remote() -> TestRes
     let d = start(tmp.path(), &rig).await?;
     let url = format!("http://{}", d.addr);
     // The daemon records its URL once it listens (idempotent if `start` did already).
-    stagehand::port_lock::record_listen_addr(d.addr);
+    stagehand::rig::port_lock::record_listen_addr(d.addr);
 
     // The CLI's `run` on the same rig is refused, naming the port and the daemon.
     let out_dir = tmp.path().join("runs");
@@ -1022,9 +1022,9 @@ async fn a_second_opener_of_the_daemons_ports_is_told_to_use_remote() -> TestRes
     }
     d.shutdown().await;
     // The fake port's lock file is this test's own: leave the shared lock directory clean.
-    let lock = stagehand::port_lock::lock_file_for(
-        &stagehand::port_lock::lock_dir(),
-        &stagehand::port_lock::canonical_port(&port),
+    let lock = stagehand::rig::port_lock::lock_file_for(
+        &stagehand::rig::port_lock::lock_dir(),
+        &stagehand::rig::port_lock::canonical_port(&port),
     );
     let _ = std::fs::remove_file(lock);
     Ok(())

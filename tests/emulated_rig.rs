@@ -11,7 +11,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use stagehand::executor::{AutoConfirm, Event, RunControl};
-use stagehand::hardware::Emulation;
+use stagehand::rig::Emulation;
 use stagehand::rig::RigSource;
 use stagehand::script::ScriptSource;
 use stagehand::session;

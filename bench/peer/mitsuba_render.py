@@ -8,7 +8,7 @@ Usage: mitsuba_render.py SCENE_JSON OUT_JSON [--spp 1,2,4,...] [--reference-spp 
 
 SCENE_JSON is the `scene.json` stagehand's exporter wrote (meshes, albedo texture, emitters
 and camera in the renderer's sample frame, millimetres; see
-simulator/src/tradeoff/mitsuba.rs). Writes OUT_JSON (times, errors, versions) and the
+tradeoff/src/mitsuba.rs). Writes OUT_JSON (times, errors, versions) and the
 converged image as `mitsuba_reference.pfm` beside it, which stagehand compares with its own
 converged reference to check that both renderers see the same scene.
 

@@ -9,6 +9,8 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
+use crate::rig::Backend;
+
 /// One serial port.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct SerialEntry {
@@ -41,8 +43,8 @@ pub struct HidRelayEntry {
 /// One camera.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct CameraEntry {
-    /// Rig backend name: `v4l`, `aravis` or `gphoto2`.
-    pub backend: String,
+    /// Rig backend: `v4l`, `aravis` or `gphoto2` (serialised as the rig file spells it).
+    pub backend: Backend,
     /// Device node (`/dev/video0`), GenICam id or gphoto2 port.
     pub path: String,
     /// Stable `/dev/v4l/by-id/…` link (V4L2 only), if udev made one.
@@ -95,7 +97,8 @@ pub fn hid_relay_entry(
 ) -> HidRelayEntry {
     let port = serial.clone().unwrap_or_else(|| path.clone());
     let rig_snippet = format!(
-        "[[switch_bank]]\nid = \"relays\"\nbackend = \"hid-relay\"\nport = \"{port}\"\nchannels = {}",
+        "[[switch_bank]]\nid = \"relays\"\nbackend = \"{}\"\nport = \"{port}\"\nchannels = {}",
+        Backend::HidRelay.as_str(),
         channels.unwrap_or(8)
     );
     HidRelayEntry {
@@ -133,16 +136,28 @@ pub fn link_for(links: &[(PathBuf, PathBuf)], device: &Path) -> Option<PathBuf> 
 }
 
 /// What a USB id usually is on a stagehand rig.
-pub fn likely_device(vid: u16, pid: u16) -> Option<&'static str> {
+pub fn likely_device(vid: u16, pid: u16) -> Option<String> {
+    let (grbl, ir) = (Backend::Grbl.as_str(), Backend::IrBridge.as_str());
+    let either = |board: &str| format!("{board} ({grbl}) or IR bridge ({ir})");
     match (vid, pid) {
-        (0x2341, 0x0043 | 0x0001 | 0x0010 | 0x0042) => {
-            Some("Arduino: GRBL controller (grbl) or IR bridge (ir-bridge)")
-        }
-        (0x1a86, 0x7523) => Some("CH340 USB serial: GRBL clone (grbl) or IR bridge (ir-bridge)"),
-        (0x0403, 0x6001) => Some("FTDI USB serial: GRBL (grbl) or IR bridge (ir-bridge)"),
-        (0x10c4, 0xea60) => Some("CP210x USB serial: GRBL (grbl) or IR bridge (ir-bridge)"),
-        (0x2a19, _) => Some("Numato relay board (relay-serial)"),
+        (0x2341, 0x0043 | 0x0001 | 0x0010 | 0x0042) => Some(either("Arduino: GRBL controller")),
+        (0x1a86, 0x7523) => Some(either("CH340 USB serial: GRBL clone")),
+        (0x0403, 0x6001) => Some(either("FTDI USB serial: GRBL")),
+        (0x10c4, 0xea60) => Some(either("CP210x USB serial: GRBL")),
+        (0x2a19, _) => Some(format!(
+            "Numato relay board ({})",
+            Backend::RelaySerial.as_str()
+        )),
         _ => None,
+    }
+}
+
+/// The backend a serial port's rig snippet proposes: a Numato board's vendor id means a
+/// relay board, anything else most likely a GRBL controller.
+fn likely_backend(usb: Option<(u16, u16)>) -> Backend {
+    match usb {
+        Some((0x2a19, _)) => Backend::RelaySerial,
+        _ => Backend::Grbl,
     }
 }
 
@@ -184,16 +199,16 @@ pub fn serial_entries(ports: &[PortFacts], by_id_dir: &Path) -> Vec<SerialEntry>
             let by_id = link_for(&links, Path::new(&p.path)).map(|l| l.display().to_string());
             let likely = p.usb.and_then(|(v, d)| likely_device(v, d));
             let stable = by_id.clone().unwrap_or_else(|| p.path.clone());
-            let backend = match likely {
-                Some(l) if l.contains("relay-serial") => "relay-serial",
-                _ => "grbl",
-            };
-            let table = if backend == "relay-serial" {
+            let backend = likely_backend(p.usb);
+            let table = if backend == Backend::RelaySerial {
                 "switch_bank"
             } else {
                 "axis"
             };
-            let rig_snippet = format!("[[{table}]]\nbackend = \"{backend}\"\nport = \"{stable}\"");
+            let rig_snippet = format!(
+                "[[{table}]]\nbackend = \"{}\"\nport = \"{stable}\"",
+                backend.as_str()
+            );
             SerialEntry {
                 path: p.path.clone(),
                 by_id,
@@ -202,7 +217,7 @@ pub fn serial_entries(ports: &[PortFacts], by_id_dir: &Path) -> Vec<SerialEntry>
                 serial_number: p.serial_number.clone(),
                 manufacturer: p.manufacturer.clone(),
                 product: p.product.clone(),
-                likely: likely.map(str::to_string),
+                likely,
                 rig_snippet,
             }
         })
@@ -236,10 +251,13 @@ pub fn v4l_cameras(sys_root: &Path, dev_root: &Path) -> Vec<CameraEntry> {
             let by_id = link_for(&links, &path).map(|l| l.display().to_string());
             let stable = by_id.clone().unwrap_or_else(|| path.display().to_string());
             Some(CameraEntry {
-                backend: "v4l".into(),
+                backend: Backend::V4l,
                 path: path.display().to_string(),
                 by_id,
-                rig_snippet: format!("[[camera]]\nbackend = \"v4l\"\nport = \"{stable}\""),
+                rig_snippet: format!(
+                    "[[camera]]\nbackend = \"{}\"\nport = \"{stable}\"",
+                    Backend::V4l.as_str()
+                ),
                 name,
                 index,
             })
@@ -272,11 +290,14 @@ fn aravis_cameras() -> Vec<CameraEntry> {
             };
             // The id is stable (vendor, model, serial); the address may change with DHCP.
             let rig_snippet = format!(
-                "[[camera]]\nbackend = \"aravis\"\nport = \"{}\"  # or the address \"{}\" or the serial \"{}\"",
-                d.id, d.address, serial
+                "[[camera]]\nbackend = \"{}\"\nport = \"{}\"  # or the address \"{}\" or the serial \"{}\"",
+                Backend::Aravis.as_str(),
+                d.id,
+                d.address,
+                serial
             );
             CameraEntry {
-                backend: "aravis".into(),
+                backend: Backend::Aravis,
                 name: format!(
                     "{} {} ({}) at {}, serial {serial}",
                     d.vendor, d.model, d.protocol, d.address
@@ -299,9 +320,10 @@ fn gphoto2_cameras() -> Vec<CameraEntry> {
         return Vec::new();
     };
     list.map(|d| CameraEntry {
-        backend: "gphoto2".into(),
+        backend: Backend::Gphoto2,
         rig_snippet: format!(
-            "[[camera]]\nbackend = \"gphoto2\"\nport = \"{}\"  # or the model name if it is the only one",
+            "[[camera]]\nbackend = \"{}\"\nport = \"{}\"  # or the model name if it is the only one",
+            Backend::Gphoto2.as_str(),
             d.port
         ),
         path: d.port,
@@ -368,7 +390,7 @@ pub fn render_table(inv: &Inventory) -> String {
     }
     for c in &inv.cameras {
         let idx = c.index.map(|i| format!("  index {i}")).unwrap_or_default();
-        let _ = writeln!(s, "  [{}] {}  {}{idx}", c.backend, c.path, c.name);
+        let _ = writeln!(s, "  [{}] {}  {}{idx}", c.backend.as_str(), c.path, c.name);
         if c.by_id.is_some() {
             let _ = writeln!(s, "    by-id: {}", opt(&c.by_id));
         }

@@ -27,7 +27,7 @@ mod request;
 pub mod rig;
 pub mod serial_link;
 pub mod switch_bank;
-pub mod switched;
+pub mod switch_wired;
 pub mod trigger;
 
 pub use error::{DeviceError, DeviceErrorKind, DeviceResult};

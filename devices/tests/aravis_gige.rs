@@ -29,7 +29,7 @@ use stagehand_devices::camera::CameraHandle;
 use stagehand_devices::cameras::aravis::{AravisCamera, StreamCounters, StreamStats, gvcp_probe};
 use stagehand_devices::cameras::config::TriggerMode;
 use stagehand_devices::discover::discover;
-use stagehand_devices::rig::{CameraSpec, load_rig_file};
+use stagehand_devices::rig::{Backend, CameraSpec, load_rig_file};
 use stagehand_devices::{DeviceError, DeviceErrorKind, DeviceResult, Frame};
 
 const TOOL: &str = "arv-fake-gv-camera-0.8";
@@ -454,7 +454,7 @@ fn discovery_lists_every_fake_camera_with_a_rig_snippet() {
         let (id, addr, sn) = (device_id(i), address(i).to_string(), serial(i));
         let entry = found
             .iter()
-            .find(|c| c.backend == "aravis" && c.path == id)
+            .find(|c| c.backend == Backend::Aravis && c.path == id)
             .unwrap_or_else(|| panic!("{id} not discovered; found {found:#?}"));
         assert!(
             entry.name.contains(&addr) && entry.name.contains(&sn),

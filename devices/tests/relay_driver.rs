@@ -16,7 +16,7 @@ use stagehand_devices::laser::LaserDriver;
 use stagehand_devices::relay_serial::{NumatoBoard, RelaySerialBank};
 use stagehand_devices::rig::{Backend, SwitchBankSpec};
 use stagehand_devices::switch_bank::{SwitchBankDriver, SwitchBankHandle};
-use stagehand_devices::switched::{GpioTrigger, SwitchLaser};
+use stagehand_devices::switch_wired::{GpioTrigger, SwitchLaser};
 use stagehand_devices::trigger::TriggerDriver;
 use stagehand_devices::{DeviceError, DeviceErrorKind};
 

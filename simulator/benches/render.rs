@@ -30,7 +30,8 @@ use rayon::prelude::*;
 use serde_json::{Value, json};
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, RigSpec, parse_rig};
 use stagehand_simulator::render::Renderer;
-use stagehand_simulator::world_state::{LaserBeam, WorldSnapshot};
+use stagehand_simulator::render::config::SimSpec;
+use stagehand_simulator::world_snapshot::{LaserBeam, WorldSnapshot};
 
 /// Environment variable that makes this binary measure one preset and print JSON lines.
 const CHILD_ENV: &str = "STAGEHAND_RENDER_BENCH_CHILD";
@@ -152,8 +153,8 @@ fn print_table(rows: &[Value], peaks: &BTreeMap<String, f64>) {
 /// The built-in light stage at full resolution with the `bumps` sample at `preset`.
 fn rig(preset: &str) -> Result<RigSpec, Box<dyn std::error::Error>> {
     let mut rig = parse_rig(BUILTIN_LIGHTSTAGE, "lightstage.toml")?;
-    rig.sim.sample = "bumps".into();
-    rig.sim.quality = preset.into();
+    SimSpec::edit(&mut rig, |s| s.sample = "bumps".into())?;
+    SimSpec::edit(&mut rig, |s| s.quality = preset.into())?;
     Ok(rig)
 }
 

@@ -14,8 +14,9 @@ use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, BUILTIN_REFLECTOMETER, RigSpec, parse_rig};
+use stagehand_simulator::render::config::SimSpec;
 use stagehand_simulator::render::{Rendered, Renderer};
-use stagehand_simulator::world_state::{LaserBeam, WorldSnapshot};
+use stagehand_simulator::world_snapshot::{LaserBeam, WorldSnapshot};
 
 struct View {
     name: &'static str,
@@ -213,7 +214,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     ] {
         let mut rig = parse_rig(text, "built-in")?;
         if let Some(q) = &quality {
-            rig.sim.quality = q.clone();
+            SimSpec::edit(&mut rig, |s| s.quality = q.clone())?;
         }
         let renderer = Renderer::new(&rig)?;
         for v in views.iter().filter(|v| v.name.contains(&filter)) {

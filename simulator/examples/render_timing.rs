@@ -14,9 +14,10 @@ use std::time::Instant;
 
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, parse_rig};
 use stagehand_simulator::render::Renderer;
+use stagehand_simulator::render::config::SimSpec;
 use stagehand_simulator::render::quality::Quality;
 use stagehand_simulator::render::sample::{FIXTURES, Sample};
-use stagehand_simulator::world_state::{LaserBeam, WorldSnapshot};
+use stagehand_simulator::world_snapshot::{LaserBeam, WorldSnapshot};
 
 /// A timed lighting setup: label, fixture, lit lamps with their output, laser on.
 type Setup = (
@@ -32,15 +33,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!(
         "rayon threads: {}, quality: {}",
         rayon::current_num_threads(),
-        rig.sim.quality
+        SimSpec::of(&rig)?.quality
     );
-    let relief_mm = Quality::parse(&rig.sim.quality)?.knobs().relief_mm;
+    let relief_mm = Quality::parse(&SimSpec::of(&rig)?.quality)?
+        .knobs()
+        .relief_mm;
     // Warm the thread pool first so the build times do not include its start-up.
     rayon::broadcast(|_| ());
     let mut builds = Vec::new();
     for name in FIXTURES {
         let t = Instant::now();
-        let sample = Sample::build(name, rig.sim.sample_size_mm as f32, relief_mm);
+        let sample = Sample::build(name, SimSpec::of(&rig)?.sample_size_mm as f32, relief_mm);
         std::hint::black_box(&sample);
         builds.push(format!("{name} {:.0}", t.elapsed().as_secs_f64() * 1e3));
     }

@@ -8,8 +8,7 @@ pub mod materials;
 pub mod render;
 pub mod scene_file;
 pub mod sim_devices;
-pub mod tradeoff;
 pub mod world;
-pub mod world_state;
+pub mod world_snapshot;
 
 pub use world::World;

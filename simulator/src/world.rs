@@ -10,7 +10,8 @@ use stagehand_devices::rig::RigSpec;
 use tokio::sync::broadcast;
 
 use crate::render::Renderer;
-use crate::world_state::{LaserBeam, WorldSnapshot};
+use crate::render::config::SimSpec;
+use crate::world_snapshot::{LaserBeam, WorldSnapshot};
 
 /// One trigger pulse on the simulated trigger line.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -88,7 +89,7 @@ impl World {
     ) -> Result<Arc<World>, crate::render::RenderError> {
         let renderer = Renderer::new(&rig)?;
         let mut state = State {
-            fixture: rig.sim.sample.clone(),
+            fixture: renderer.sim().sample.clone(),
             ..State::default()
         };
         for a in &rig.axes {
@@ -130,6 +131,11 @@ impl World {
 
     pub fn rig(&self) -> &RigSpec {
         &self.rig
+    }
+
+    /// The rig's `[sim]` settings (sample, quality, ground truth).
+    pub fn sim(&self) -> &SimSpec {
+        self.renderer.sim()
     }
 
     pub fn clock(&self) -> RigClock {

@@ -17,6 +17,7 @@ use stagehand_simulator::materials::{
     self, Dipole, Fresnel, blinn_phong, cook_torrance_ggx, cook_torrance_ggx_f32, lambert,
     total_diffuse_reflectance, ward_aniso, ward_aniso_f32, ward_iso,
 };
+use stagehand_simulator::render::config::SimSpec;
 use stagehand_simulator::render::geometry::{CameraPose, ToSample};
 use stagehand_simulator::render::heightfield::HeightGrid;
 use stagehand_simulator::render::lights::{HALOGEN_RADIUS_MM, HALOGEN_RGB, REFERENCE_DISTANCE_MM};
@@ -26,7 +27,7 @@ use stagehand_simulator::render::sensor::{self, Sensor};
 use stagehand_simulator::render::shading::{brdf, ward_lobe};
 use stagehand_simulator::render::shadow::{VertexVisibility, shadow_origin};
 use stagehand_simulator::render::{RadianceImage, RenderError, Renderer};
-use stagehand_simulator::world_state::{LaserBeam, WorldSnapshot};
+use stagehand_simulator::world_snapshot::{LaserBeam, WorldSnapshot};
 
 // ---------------------------------------------------------------------------------------------
 // Bounds
@@ -117,8 +118,8 @@ fn rig(fixture: &str, quality: &str) -> RigSpec {
         c.width = W;
         c.height = H;
     }
-    rig.sim.sample = fixture.into();
-    rig.sim.quality = quality.into();
+    SimSpec::edit(&mut rig, |s| s.sample = fixture.into()).expect("sim");
+    SimSpec::edit(&mut rig, |s| s.quality = quality.into()).expect("sim");
     rig
 }
 
@@ -627,8 +628,9 @@ fn flat_against_reference(
 ) -> Stats {
     let spec = rig.camera(cam).expect("camera");
     let pose = CameraPose::new(spec, ToSample::new(0.0));
-    let sample = Sample::build("flat", rig.sim.sample_size_mm as f32, 0.2).expect("flat builds");
-    let half = 0.5 * rig.sim.sample_size_mm - 2.0;
+    let size_mm = SimSpec::of(rig).expect("sim").sample_size_mm;
+    let sample = Sample::build("flat", size_mm as f32, 0.2).expect("flat builds");
+    let half = 0.5 * size_mm - 2.0;
     let eye = pose.origin.as_dvec3();
     let (mut ratios, mut worst) = (Vec::new(), 0.0f64);
     for y in 0..H {
@@ -879,9 +881,14 @@ fn low_elevation_light_gives_uniform_brightness() {
         let mut rig = rig("planes", quality);
         rig.lamps[0].elevation_deg = ELEVATION_DEG;
         // Direct light only: light bounced off the step's wall would brighten the lower plane.
-        rig.sim.knobs.bounces = Some(0);
+        SimSpec::edit(&mut rig, |s| s.knobs.bounces = Some(0)).expect("sim");
         let r = Renderer::new(&rig).expect("renderer");
-        let planes = Sample::build("planes", rig.sim.sample_size_mm as f32, 0.2).expect("planes");
+        let planes = Sample::build(
+            "planes",
+            SimSpec::of(&rig).expect("sim").sample_size_mm as f32,
+            0.2,
+        )
+        .expect("planes");
         for cam in ["cam1", "cam3", "cam5"] {
             let w = world("planes", &[("lamp1", 1.0)], 0.0);
             let out = r.render(&w, cam, 0.02, 1.0, 1).expect("render");

@@ -6,12 +6,13 @@ use std::collections::BTreeMap;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
-use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, FIXTURES, parse_rig};
+use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, parse_rig};
+use stagehand_simulator::render::config::{FIXTURES, SimSpec};
 use stagehand_simulator::render::material::Model;
 use stagehand_simulator::render::sample::{Kind, Sample};
 use stagehand_simulator::render::{RenderError, Renderer};
 use stagehand_simulator::scene_file::{BUILTIN_SCENES, load_scene_file};
-use stagehand_simulator::world_state::WorldSnapshot;
+use stagehand_simulator::world_snapshot::WorldSnapshot;
 use tempfile::TempDir;
 
 /// Writes `text` as `name` in `dir` and returns its path.
@@ -332,7 +333,7 @@ fn an_albedo_map_shows_up_in_the_rendered_frame() {
         .replace("width = 1024", "width = 64")
         .replace("height = 768", "height = 48");
     let mut rig = parse_rig(&text, "lightstage.toml").expect("rig");
-    rig.sim.sample = fixture.clone();
+    SimSpec::edit(&mut rig, |s| s.sample = fixture.clone()).expect("sim");
     let renderer = Renderer::new(&rig).expect("renderer");
     let lamps: BTreeMap<String, f64> = rig.lamps.iter().map(|l| (l.id.clone(), 1.0)).collect();
     let world = WorldSnapshot {
@@ -373,7 +374,7 @@ fn scene_render_settings_apply_on_top_of_the_rigs() {
         .replace("width = 1024", "width = 16")
         .replace("height = 768", "height = 12");
     let mut rig = parse_rig(&text, "lightstage.toml").expect("rig");
-    rig.sim.sample = fixture.clone();
+    SimSpec::edit(&mut rig, |s| s.sample = fixture.clone()).expect("sim");
     let renderer = Renderer::new(&rig).expect("renderer");
     let world = WorldSnapshot {
         rig_time_s: 1.0,

@@ -64,7 +64,11 @@ async fn check_boards(spec: &RigSpec) -> (String, bool) {
     let mut all_ok = true;
     for (port, axes) in ports {
         let ids: Vec<&str> = axes.iter().map(|a| a.id.as_str()).collect();
-        let label = ids.first().copied().unwrap_or("grbl").to_string();
+        let label = ids
+            .first()
+            .copied()
+            .unwrap_or(Backend::Grbl.as_str())
+            .to_string();
         let baud = axes.iter().find_map(|a| a.baud).unwrap_or(GRBL_BAUD);
         let ctl = GrblController::new(&label, &port, baud, axes.clone());
         ctl.set_keepalive(false);

@@ -14,7 +14,7 @@ use tokio::sync::broadcast;
 
 use crate::dry_run::{render_report_with_renderer, renderer_line};
 use crate::executor::{AutoConfirm, Operator, RunControl, Summary};
-use crate::hardware::Emulation;
+use crate::rig::Emulation;
 use crate::rig::RigSource;
 use crate::script::{ScriptSource, parse_set};
 use crate::session::{self, DEFAULT_RESERVE_BYTES, SessionError, Wiring};
@@ -260,7 +260,7 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
             if !emulate {
                 // Refused before a run directory exists when another process (the daemon)
                 // holds the rig's ports; the rig takes the locks again when it opens.
-                drop(crate::hardware::lock_real_ports(&prepared.rig.spec)?);
+                drop(crate::rig::lock_real_ports(&prepared.rig.spec)?);
             }
             let runtime =
                 session::runtime_for(&prepared.rig).map_err(|e| SessionError::Io(e.to_string()))?;

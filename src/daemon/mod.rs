@@ -43,7 +43,7 @@ use utoipa_swagger_ui::SwaggerUi;
 use self::auth::Tokens;
 use self::error::ApiError;
 use self::state::{AppState, Daemon};
-use crate::hardware::Emulation;
+use crate::rig::Emulation;
 use crate::rig::{Rig, RigSource};
 
 /// How long shutdown waits for open requests and the run to wind down.
@@ -207,7 +207,7 @@ pub async fn start(opts: ServeOptions) -> Result<RunningDaemon, DaemonError> {
         .local_addr()
         .map_err(|e| DaemonError::Io(e.to_string()))?;
     // A CLI refused the rig's ports is told where to send its run instead.
-    crate::port_lock::record_listen_addr(addr);
+    crate::rig::port_lock::record_listen_addr(addr);
     let app = router(state.clone());
     let (tx, rx) = oneshot::channel::<()>();
     let server = tokio::spawn(async move {

@@ -10,7 +10,7 @@ use super::auth::Tokens;
 use super::estop::EStop;
 use super::events::EventHub;
 use super::runs::RunManager;
-use crate::hardware::Emulation;
+use crate::rig::Emulation;
 use crate::rig::{Rig, RigSource};
 
 /// Everything the daemon owns.

@@ -52,6 +52,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use serde::{Deserialize, Serialize};
 use stagehand_devices::motion;
 use stagehand_devices::rig::RigSpec;
+use stagehand_simulator::render::config::SimSpec;
 
 use crate::plan::{Action, Plan};
 
@@ -164,7 +165,7 @@ impl RigState {
             laser_fitted_nm: rig.laser.as_ref().map_or(0, |l| l.fitted_nm),
             laser_mount_deg: rig.laser.as_ref().map_or(0.0, |l| l.mount_elevation_deg),
             cart_mm: 0.0,
-            fixture: rig.sim.sample.clone(),
+            fixture: SimSpec::sample_of(rig),
         }
     }
 
@@ -708,7 +709,8 @@ pub(crate) mod test_rigs {
         if let Some(l) = &mut rig.laser {
             (l.colours_nm, l.fitted_nm, l.mount_elevation_deg) = (vec![650, 532, 473], 650, 45.0);
         }
-        rig.sim.sample = "bumps".into();
+        stagehand_simulator::render::config::SimSpec::edit(&mut rig, |s| s.sample = "bumps".into())
+            .unwrap();
         rig
     }
 

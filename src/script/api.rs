@@ -6,6 +6,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 
 use rhai::{Dynamic, Engine, EvalAltResult, FnPtr, ImmutableString, Map, NativeCallContext};
 use stagehand_devices::rig::{LampKind, RigSpec};
+use stagehand_simulator::render::config::SimSpec;
 
 use super::error::ScriptError;
 use super::params::{describe, kind_of, normalise, parse_value, to_json, valid_name};
@@ -807,9 +808,9 @@ pub(crate) fn register(engine: &mut Engine, state: &Shared) {
         Ok(Dynamic::from(ImmutableString::from(b.blocks.join("/"))))
     });
     reg!(engine, state, "rig_sample", |b, _at| {
-        Ok(Dynamic::from(ImmutableString::from(
-            b.rig.sim.sample.as_str(),
-        )))
+        Ok(Dynamic::from(ImmutableString::from(SimSpec::sample_of(
+            &b.rig,
+        ))))
     });
     reg!(engine, state, "rig_name", |b, _at| {
         Ok(Dynamic::from(ImmutableString::from(

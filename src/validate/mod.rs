@@ -13,7 +13,7 @@ use stagehand_devices::rig::{CameraSpec, RigSpec};
 
 use crate::estimate::{MAX_WAIT_S, RigState};
 use crate::plan::{Action, Plan, SourcePos, Step};
-pub use stagehand_devices::rig::FIXTURES;
+use stagehand_simulator::render::config::{FIXTURES, names_sample};
 
 /// How bad a [`Violation`] is.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -494,7 +494,7 @@ impl<'a> Here<'_, 'a> {
         state: &RigState,
     ) {
         if let Some(f) = fixture
-            && !stagehand_devices::rig::names_sample(f)
+            && !names_sample(f)
         {
             self.error(format!(
                 "prompt: fixture `{f}` is unknown; use one of: {} or the path of a scene file ending in .toml",

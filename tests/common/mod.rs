@@ -11,7 +11,7 @@ use std::pin::Pin;
 use std::sync::{Arc, Mutex};
 
 use stagehand::executor::{Answer, AutoConfirm, Event, Operator, RunControl, Summary};
-use stagehand::hardware::Emulation;
+use stagehand::rig::Emulation;
 use stagehand::rig::RigSource;
 use stagehand::script::ScriptSource;
 use stagehand::session::{self, DEFAULT_RESERVE_BYTES, Prepared, SessionError, Wiring};
@@ -118,7 +118,7 @@ pub fn run_prepared(
 }
 
 /// Like [`run_prepared`], optionally with the serial devices emulated (see
-/// `stagehand::hardware::Emulation`).
+/// `stagehand::rig::Emulation`).
 pub fn run_prepared_with(
     prepared: Prepared,
     out: &Path,

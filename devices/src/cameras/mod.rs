@@ -8,6 +8,7 @@
 
 pub mod accounting;
 pub mod config;
+pub(crate) mod wiring;
 
 #[cfg(feature = "cam-aravis")]
 // The only unsafe in the crate: aravis-sys calls the safe `aravis` wrapper does not cover.

@@ -13,6 +13,7 @@ pub mod controller;
 pub mod flow;
 pub mod laser;
 pub mod settings;
+pub(crate) mod wiring;
 
 pub use axis::GrblAxis;
 pub use controller::GrblController;

@@ -6,6 +6,7 @@
 
 pub mod codec;
 pub mod driver;
+pub(crate) mod wiring;
 
 pub use codec::{HidCommand, HidState};
 pub use driver::{

@@ -5,6 +5,7 @@
 
 pub mod bridge;
 pub mod power_functions;
+pub(crate) mod wiring;
 
 pub use bridge::IrBridgeCart;
 pub use power_functions::{Output, PfWord, Pwm};

@@ -5,6 +5,7 @@
 
 pub mod board;
 pub mod codec;
+pub(crate) mod wiring;
 
 pub use board::{NumatoBoard, RelaySerialBank};
 pub use codec::Command;

@@ -1,12 +1,13 @@
 //! Reading rig files: TOML syntax and schema errors and impossible values are all reported at
-//! file:line:col with a sentence saying what is expected.
+//! file:line:col with a sentence saying what is expected. The `[sim]` table is only carried
+//! here; the simulator checks it (`stagehand_simulator::render::config::check_rig`).
 
 use std::path::Path;
 
 use thiserror::Error;
-use toml::de::{DeTable, DeValue};
 
-use super::spec::{CameraSpec, FIXTURES, LampKind, RigSpec};
+use super::span::{Problem, Seg, at, line_col, locate};
+use super::spec::{CameraSpec, LampKind, RigSpec};
 use crate::lens::Intrinsics;
 
 /// A rig file that could not be used.
@@ -32,53 +33,31 @@ pub fn load_rig_file(path: &Path) -> Result<RigSpec, RigError> {
     parse_rig(&text, &path.display().to_string())
 }
 
-/// Parses and checks rig TOML; `origin` names the file in error messages.
+/// Parses and checks rig TOML; `origin` names the file in error messages. The `[sim]` table
+/// is only required to be a table: the simulator checks it (`stagehand_simulator::render::config`).
 pub fn parse_rig(text: &str, origin: &str) -> Result<RigSpec, RigError> {
     let spec: RigSpec = toml::from_str(text).map_err(|e| {
         let offset = e.span().map(|s| s.start).unwrap_or(0);
-        let (line, col) = line_col(text, offset);
-        let message = e.message().trim().replace('\n', " ");
-        RigError::Invalid {
-            path: origin.to_string(),
-            line,
-            col,
-            message,
-        }
+        RigError::at(text, origin, offset, e.message().trim().replace('\n', " "))
     })?;
     check(&spec).map_err(|(path, message)| {
-        let offset = locate(text, &path).unwrap_or(0);
-        let (line, col) = line_col(text, offset);
-        RigError::Invalid {
-            path: origin.to_string(),
-            line,
-            col,
-            message,
-        }
+        RigError::at(text, origin, locate(text, &path).unwrap_or(0), message)
     })?;
     Ok(spec)
 }
 
-/// Whether `name` can name the sample on the stage: a built-in scene from [`FIXTURES`] or the
-/// path of a scene file ending in `.toml` (whether it exists is checked when the renderer
-/// builds the sample).
-pub fn names_sample(name: &str) -> bool {
-    FIXTURES.contains(&name) || name.ends_with(".toml")
-}
-
-/// A step into a TOML document: a key or an index into an array (of tables or values). Paths
-/// of steps name the value an error is about, for [`locate`].
-#[derive(Debug, Clone)]
-pub enum Seg {
-    /// A key of the current table.
-    Key(&'static str),
-    /// An element of the current array.
-    Index(usize),
-}
-
-type Problem = (Vec<Seg>, String);
-
-fn at(table: &'static str, index: usize, key: &'static str) -> Vec<Seg> {
-    vec![Seg::Key(table), Seg::Index(index), Seg::Key(key)]
+impl RigError {
+    /// The problem `message` at byte `offset` of the rig file `text`, named `origin`: an
+    /// [`RigError::Invalid`] with its line and column.
+    pub fn at(text: &str, origin: &str, offset: usize, message: impl Into<String>) -> RigError {
+        let (line, col) = line_col(text, offset);
+        RigError::Invalid {
+            path: origin.to_string(),
+            line,
+            col,
+            message: message.into(),
+        }
+    }
 }
 
 fn positive(v: f64) -> bool {
@@ -352,31 +331,6 @@ fn check(spec: &RigSpec) -> Result<(), Problem> {
             ));
         }
     }
-    if !names_sample(&spec.sim.sample) {
-        return Err((
-            vec![Seg::Key("sim"), Seg::Key("sample")],
-            format!(
-                "sim.sample `{}` is unknown; use one of {} or the path of a scene file ending in .toml",
-                spec.sim.sample,
-                FIXTURES.join(", ")
-            ),
-        ));
-    }
-    if !["preview", "standard", "reference"].contains(&spec.sim.quality.as_str()) {
-        return Err((
-            vec![Seg::Key("sim"), Seg::Key("quality")],
-            format!(
-                "sim.quality `{}` is unknown; use preview, standard or reference",
-                spec.sim.quality
-            ),
-        ));
-    }
-    if !positive(spec.sim.sample_size_mm) {
-        return Err((
-            vec![Seg::Key("sim"), Seg::Key("sample_size_mm")],
-            "sim.sample_size_mm must be positive".into(),
-        ));
-    }
     for (i, (id, path)) in ids.iter().enumerate() {
         if id.is_empty()
             || !id
@@ -444,49 +398,6 @@ fn check_lens(c: &CameraSpec) -> Result<(), (&'static str, String)> {
         };
         (key, format!("camera `{}`: {reason}", c.id))
     })
-}
-
-/// Byte offset in `text` of the value at `path`, or of the deepest part of it that exists;
-/// `None` when the text does not parse or not even the first step exists.
-pub fn locate(text: &str, path: &[Seg]) -> Option<usize> {
-    let root = DeTable::parse(text).ok()?;
-    let mut best = None;
-    let mut table: &DeTable = root.get_ref();
-    let mut current: Option<&DeValue> = None;
-    for seg in path {
-        let next = match (seg, current) {
-            (Seg::Key(k), None) => table
-                .iter()
-                .find(|(key, _)| key.get_ref() == k)
-                .map(|(_, v)| v),
-            (Seg::Key(k), Some(DeValue::Table(t))) => {
-                t.iter().find(|(key, _)| key.get_ref() == k).map(|(_, v)| v)
-            }
-            (Seg::Index(i), Some(DeValue::Array(a))) => a.get(*i),
-            _ => None,
-        };
-        let Some(next) = next else { break };
-        best = Some(next.span().start);
-        if let DeValue::Table(t) = next.get_ref() {
-            table = t;
-        }
-        current = Some(next.get_ref());
-    }
-    best
-}
-
-/// 1-based line and column (in characters) of a byte offset into `text`.
-pub fn line_col(text: &str, offset: usize) -> (usize, usize) {
-    let offset = offset.min(text.len());
-    let before = &text[..offset];
-    let line = before.matches('\n').count() + 1;
-    let col = before
-        .rsplit('\n')
-        .next()
-        .map(|l| l.chars().count())
-        .unwrap_or(0)
-        + 1;
-    (line, col)
 }
 
 #[cfg(test)]
@@ -576,20 +487,30 @@ mod tests {
         assert_eq!(l, 3);
     }
 
+    const AXIS: &str = "[rig]\nname = \"t\"\n\n[[axis]]\nid = \"turn\"\nbackend = \"grbl\"\nrole = \"turntable\"\nspeed_deg_s = 30.0\naccel_deg_s2 = 60.0\nmin_deg = 0.0\nmax_deg = 360.0\n";
+
     #[test]
-    fn sim_sample_names_a_builtin_scene_or_a_toml_path() {
-        let with = |sample: &str| {
-            BUILTIN_LIGHTSTAGE.replacen("sample = \"bumps\"", &format!("sample = \"{sample}\""), 1)
-        };
-        assert!(parse_rig(&with("marble"), "x.toml").is_ok());
-        assert!(parse_rig(&with("scenes/mine.toml"), "x.toml").is_ok());
-        let text = with("teapot");
-        let line = text.lines().position(|l| l.contains("teapot")).unwrap() + 1;
-        let (l, _, m) = err(&text);
-        assert_eq!(l, line);
-        assert!(m.contains("teapot") && m.contains(".toml"), "{m}");
-        assert!(names_sample("cavity") && names_sample("a/b.toml"));
-        assert!(!names_sample("teapot") && !names_sample("b.tom"));
+    fn each_backend_checks_its_own_wiring_at_the_key() {
+        let (l, c, m) = err(AXIS);
+        assert_eq!((l, c), (6, 11));
+        assert!(m.contains("backend `grbl` needs `port`"), "{m}");
+        let ported = format!("{AXIS}port = \"/dev/ttyACM0\"\n");
+        let (l, _, m) = err(&ported);
+        assert_eq!(l, 6);
+        assert!(m.contains("controller_axis"), "{m}");
+        let ok = format!("{ported}controller_axis = \"X\"\n");
+        assert!(parse_rig(&ok, "x.toml").is_ok());
+        let hid = "[rig]\nname = \"t\"\n\n[[switch_bank]]\nid = \"b\"\nbackend = \"hid-relay\"\nchannels = 9\n";
+        let (l, c, m) = err(hid);
+        assert_eq!((l, c), (7, 12));
+        assert!(m.contains("at most 8 relays"), "{m}");
+        let camera = AXIS.replace("\"grbl\"", "\"v4l\"");
+        let (l, _, m) = err(&camera);
+        assert_eq!(l, 6);
+        assert!(
+            m.contains("cannot drive this kind of device; use one of sim, grbl"),
+            "{m}"
+        );
     }
 
     #[test]

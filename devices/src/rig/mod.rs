@@ -1,10 +1,11 @@
 //! Rig descriptions: which devices exist, their backends, ports and physics, read from TOML.
 
 mod load;
+pub mod span;
 mod spec;
 mod wiring;
 
-pub use load::{RigError, Seg, line_col, load_rig_file, locate, names_sample, parse_rig};
+pub use load::{RigError, load_rig_file, parse_rig};
 pub use spec::*;
 
 /// The built-in simulated light stage (devices/rigs/lightstage.toml), used when no rig is given.

@@ -23,8 +23,9 @@ pub struct RigSpec {
     pub laser: Option<LaserSpec>,
     #[serde(default)]
     pub cart: Option<CartSpec>,
+    /// `[sim]`, read and checked by the simulator.
     #[serde(default)]
-    pub sim: SimSpec,
+    pub sim: SimTable,
 }
 
 /// Name and purpose of the rig.
@@ -36,9 +37,9 @@ pub struct RigInfo {
     pub description: String,
 }
 
-/// Which driver talks to a device. `sim` is the built-in simulated backend.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
+/// Which driver talks to a device. `sim` is the built-in simulated backend. Rig files, JSON
+/// and messages spell it as [`Backend::as_str`] does (serde goes through it too).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Backend {
     Sim,
     Grbl,
@@ -55,8 +56,34 @@ pub enum Backend {
 }
 
 impl Backend {
-    /// The name a rig file uses (`relay-serial`, `grbl`, …).
-    pub fn as_str(self) -> &'static str {
+    /// Every backend.
+    pub const ALL: [Backend; 10] = [
+        Backend::Sim,
+        Backend::Grbl,
+        Backend::RelaySerial,
+        Backend::HidRelay,
+        Backend::IrBridge,
+        Backend::V4l,
+        Backend::Aravis,
+        Backend::Gphoto2,
+        Backend::Switch,
+        Backend::Software,
+    ];
+
+    /// Every backend's name, in the order of [`Backend::ALL`] (for "expected one of" errors).
+    pub const NAMES: [&'static str; 10] = {
+        let mut names = [""; 10];
+        let mut i = 0;
+        while i < names.len() {
+            names[i] = Backend::ALL[i].as_str();
+            i += 1;
+        }
+        names
+    };
+
+    /// The name a rig file uses (`relay-serial`, `grbl`, …): the one spelling of backend
+    /// names.
+    pub const fn as_str(self) -> &'static str {
         match self {
             Backend::Sim => "sim",
             Backend::Grbl => "grbl",
@@ -69,6 +96,22 @@ impl Backend {
             Backend::Switch => "switch",
             Backend::Software => "software",
         }
+    }
+}
+
+impl Serialize for Backend {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(self.as_str())
+    }
+}
+
+impl<'de> Deserialize<'de> for Backend {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        let name = String::deserialize(deserializer)?;
+        Backend::ALL
+            .into_iter()
+            .find(|b| b.as_str() == name)
+            .ok_or_else(|| serde::de::Error::unknown_variant(&name, &Backend::NAMES))
     }
 }
 
@@ -379,93 +422,13 @@ fn default_pf_speed() -> u8 {
     7
 }
 
-/// Fixtures that can lie on the stage: procedural samples and calibration targets. The rig's
-/// `sim.sample`, operator prompts and the renderer all draw from this one list.
-pub const FIXTURES: [&str; 13] = [
-    "flat",
-    "bumps",
-    "steps",
-    "weave",
-    "checkerboard",
-    "colorchecker",
-    "planes",
-    "marble",
-    "brushed_metal",
-    "plastic_ggx",
-    "glossy_blinn",
-    "felt_quasi",
-    "cavity",
-];
-
-/// Simulation settings: the sample on the stage and the renderer's seed and quality.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SimSpec {
-    /// Procedural sample: flat, bumps, steps, weave, checkerboard, colorchecker, planes.
-    #[serde(default = "default_sample")]
-    pub sample: String,
-    /// Edge length of the square sample.
-    #[serde(default = "default_sample_size")]
-    pub sample_size_mm: f64,
-    /// Renderer quality preset: preview, standard, reference.
-    #[serde(default = "default_quality")]
-    pub quality: String,
-    /// Single accuracy knobs overriding the preset (`[sim.knobs]`).
-    #[serde(default)]
-    pub knobs: SimKnobs,
-    /// Write ground truth (depth, normals, noise-free radiance, material parameters) beside
-    /// every frame.
-    #[serde(default)]
-    pub ground_truth: bool,
-}
-
-/// Overrides of the renderer's accuracy knobs; each unset knob keeps the preset's value.
-/// The simulator's `Knobs` documents each one; they are here so rig and scene files are
-/// checked (unknown keys, wrong types) with a file:line:col like every other table.
+/// The rig file's `[sim]` table (the simulated rig's settings: the sample on the stage, the
+/// renderer's quality and knobs, ground truth), kept as raw TOML. The simulator owns its schema
+/// and checks it (`stagehand_simulator::render::config`), at file:line:col through
+/// [`super::span::locate`]; the device layer only carries it, so it knows no renderer setting.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SimKnobs {
-    /// Side of the stratified sub-pixel grid (samples per pixel = side²).
-    pub spp_side: Option<u32>,
-    /// Points on each halogen lamp's disk per pixel (1 = point light).
-    pub halogen_samples: Option<u32>,
-    /// Points along the reflectometer tube per pixel.
-    pub tube_samples: Option<u32>,
-    /// Most interreflection bounces.
-    pub bounces: Option<u32>,
-    /// Hemisphere rays per relief texel per bounce.
-    pub bounce_rays: Option<u32>,
-    /// Relative bound below which a bounce is skipped.
-    pub bounce_tolerance: Option<f32>,
-    /// Relief grid and march step in mm.
-    pub relief_mm: Option<f32>,
-    /// Per-vertex shadow maps instead of exact shadow rays.
-    pub shadow_maps: Option<bool>,
-    /// Dipole kernel samples per mean free path.
-    pub dipole_samples: Option<u32>,
-}
-
-fn default_sample() -> String {
-    "bumps".into()
-}
-fn default_sample_size() -> f64 {
-    80.0
-}
-fn default_quality() -> String {
-    "preview".into()
-}
-
-impl Default for SimSpec {
-    fn default() -> Self {
-        Self {
-            sample: default_sample(),
-            sample_size_mm: default_sample_size(),
-            quality: default_quality(),
-            knobs: SimKnobs::default(),
-            ground_truth: false,
-        }
-    }
-}
+#[serde(transparent)]
+pub struct SimTable(pub toml::Table);
 
 impl RigSpec {
     pub fn axis(&self, id: &str) -> Option<&AxisSpec> {
@@ -536,5 +499,21 @@ impl LaserWatchdog {
             LaserWatchdog::Simulated => "simulated laser".into(),
             LaserWatchdog::None(why) => format!("no watchdog: {why}"),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn backends_read_and_write_as_their_names() {
+        for b in Backend::ALL {
+            let json = serde_json::to_string(&b).expect("serialises");
+            assert_eq!(json, format!("\"{}\"", b.as_str()));
+            assert_eq!(serde_json::from_str::<Backend>(&json).expect("reads"), b);
+        }
+        let e = serde_json::from_str::<Backend>("\"relay_serial\"").expect_err("unknown");
+        assert!(e.to_string().contains("relay-serial"), "{e}");
     }
 }

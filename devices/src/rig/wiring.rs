@@ -1,17 +1,12 @@
-//! Checks of how a rig's devices are wired to drivers: which backends each kind of device
-//! accepts, the ports and channels a backend needs, and devices that share a controller.
+//! Checks of how a rig's devices are wired to drivers that hold for every backend: which
+//! backends each kind of device accepts, baud rates, watchdog and pulse lengths. What one
+//! backend needs (ports, channels, controller letters, shared controllers) is checked beside
+//! its driver, in its folder's `wiring.rs`; this file calls each of them.
 
-use std::collections::BTreeMap;
-
-use super::load::Seg;
+use super::span::{Problem, Seg, at, key};
 use super::spec::{Backend, RigSpec};
 
-type Problem = (Vec<Seg>, String);
-
-fn at(table: &'static str, index: usize, key: &'static str) -> Vec<Seg> {
-    vec![Seg::Key(table), Seg::Index(index), Seg::Key(key)]
-}
-
+/// Err unless `allowed` contains `b`, the backend of a device `what` at `path`.
 fn backend_for(path: Vec<Seg>, what: &str, b: Backend, allowed: &[Backend]) -> Result<(), Problem> {
     if allowed.contains(&b) {
         return Ok(());
@@ -27,24 +22,7 @@ fn backend_for(path: Vec<Seg>, what: &str, b: Backend, allowed: &[Backend]) -> R
     ))
 }
 
-fn needs_port(
-    path: Vec<Seg>,
-    what: &str,
-    b: Backend,
-    port: &Option<String>,
-) -> Result<(), Problem> {
-    match port {
-        Some(p) if !p.trim().is_empty() => Ok(()),
-        _ => Err((
-            path,
-            format!(
-                "{what}: backend `{}` needs `port`, e.g. a /dev/serial/by-id/... path (list them with `stagehand devices`)",
-                b.as_str()
-            ),
-        )),
-    }
-}
-
+/// Err if a serial baud rate is given and impossible.
 fn baud_ok(path: Vec<Seg>, what: &str, baud: Option<u32>) -> Result<(), Problem> {
     match baud {
         Some(b) if !(300..=4_000_000).contains(&b) => Err((
@@ -55,10 +33,20 @@ fn baud_ok(path: Vec<Seg>, what: &str, baud: Option<u32>) -> Result<(), Problem>
     }
 }
 
-/// Backends, ports, controller letters and switch channels of every device.
+/// Backends, ports, controller letters and switch channels of every device: first what holds
+/// for every backend, then each backend's own checks.
 pub(super) fn check_wiring(spec: &RigSpec) -> Result<(), Problem> {
-    // GRBL: one controller per port, each letter once.
-    let mut letters: BTreeMap<(&str, &str), &str> = BTreeMap::new();
+    check_kinds(spec)?;
+    crate::grbl::wiring::check(spec)?;
+    crate::relay_serial::wiring::check(spec)?;
+    crate::hid_relay::wiring::check(spec)?;
+    crate::switch_wired::wiring::check(spec)?;
+    crate::ir_cart::wiring::check(spec)?;
+    crate::cameras::wiring::check(spec)
+}
+
+/// The backends each kind of device accepts, and the settings every backend shares.
+fn check_kinds(spec: &RigSpec) -> Result<(), Problem> {
     for (i, a) in spec.axes.iter().enumerate() {
         let what = format!("axis `{}`", a.id);
         backend_for(
@@ -68,28 +56,6 @@ pub(super) fn check_wiring(spec: &RigSpec) -> Result<(), Problem> {
             &[Backend::Sim, Backend::Grbl],
         )?;
         baud_ok(at("axis", i, "baud"), &what, a.baud)?;
-        if a.backend != Backend::Grbl {
-            continue;
-        }
-        needs_port(at("axis", i, "backend"), &what, a.backend, &a.port)?;
-        let letter = a.controller_axis.as_deref().unwrap_or("");
-        if !["X", "Y", "Z"].contains(&letter) {
-            return Err((
-                at("axis", i, "backend"),
-                format!(
-                    "{what}: a GRBL axis needs controller_axis = \"X\", \"Y\" or \"Z\" (the letter it has on the controller)"
-                ),
-            ));
-        }
-        let port = a.port.as_deref().unwrap_or("");
-        if let Some(other) = letters.insert((port, letter), &a.id) {
-            return Err((
-                at("axis", i, "controller_axis"),
-                format!(
-                    "{what}: controller axis {letter} on {port} is already axis `{other}`; give each axis its own letter"
-                ),
-            ));
-        }
     }
     for (i, b) in spec.switch_banks.iter().enumerate() {
         let what = format!("switch bank `{}`", b.id);
@@ -100,27 +66,6 @@ pub(super) fn check_wiring(spec: &RigSpec) -> Result<(), Problem> {
             &[Backend::Sim, Backend::RelaySerial, Backend::HidRelay],
         )?;
         baud_ok(at("switch_bank", i, "baud"), &what, b.baud)?;
-        if b.backend == Backend::RelaySerial {
-            needs_port(at("switch_bank", i, "backend"), &what, b.backend, &b.port)?;
-            if b.channels > 32 {
-                return Err((
-                    at("switch_bank", i, "channels"),
-                    format!(
-                        "{what}: a serial relay board has at most 32 relays, got {}",
-                        b.channels
-                    ),
-                ));
-            }
-        }
-        if b.backend == Backend::HidRelay && b.channels > 8 {
-            return Err((
-                at("switch_bank", i, "channels"),
-                format!(
-                    "{what}: a USB HID relay board has at most 8 relays, got {}",
-                    b.channels
-                ),
-            ));
-        }
         if !(b.watchdog_s.is_finite() && (0.5..=600.0).contains(&b.watchdog_s)) {
             return Err((
                 at("switch_bank", i, "watchdog_s"),
@@ -132,10 +77,9 @@ pub(super) fn check_wiring(spec: &RigSpec) -> Result<(), Problem> {
         }
     }
     for (i, c) in spec.cameras.iter().enumerate() {
-        let what = format!("camera `{}`", c.id);
         backend_for(
             at("camera", i, "backend"),
-            &what,
+            &format!("camera `{}`", c.id),
             c.backend,
             &[
                 Backend::Sim,
@@ -144,136 +88,42 @@ pub(super) fn check_wiring(spec: &RigSpec) -> Result<(), Problem> {
                 Backend::Gphoto2,
             ],
         )?;
-        if c.backend == Backend::V4l {
-            needs_port(at("camera", i, "backend"), &what, c.backend, &c.port)?;
-        }
     }
     if let Some(t) = &spec.trigger {
-        let key = |k| vec![Seg::Key("trigger"), Seg::Key(k)];
         let what = format!("trigger `{}`", t.id);
         backend_for(
-            key("backend"),
+            key("trigger", "backend"),
             &what,
             t.backend,
             &[Backend::Sim, Backend::Switch, Backend::Software],
         )?;
         if !(t.pulse_s.is_finite() && (1e-6..=1.0).contains(&t.pulse_s)) {
             return Err((
-                key("pulse_s"),
+                key("trigger", "pulse_s"),
                 format!(
                     "{what}: pulse_s must be between 1 µs and 1 s, got {}",
                     t.pulse_s
                 ),
             ));
         }
-        if t.backend == Backend::Switch {
-            let bank = t.bank.as_deref().and_then(|b| spec.bank(b));
-            match bank {
-                Some(b) if b.backend == Backend::RelaySerial => {}
-                _ => {
-                    return Err((
-                        key("backend"),
-                        format!(
-                            "{what}: backend `switch` needs `bank`, the id of a relay-serial switch bank whose GPIO line fires the cameras"
-                        ),
-                    ));
-                }
-            }
-            if !matches!(t.line, Some(l) if l < 32) {
-                return Err((
-                    key("backend"),
-                    format!(
-                        "{what}: backend `switch` needs `line`, the board's GPIO number (0–31)"
-                    ),
-                ));
-            }
-        }
     }
     if let Some(l) = &spec.laser {
-        let key = |k| vec![Seg::Key("laser"), Seg::Key(k)];
-        let what = format!("laser `{}`", l.id);
         backend_for(
-            key("backend"),
-            &what,
+            key("laser", "backend"),
+            &format!("laser `{}`", l.id),
             l.backend,
             &[Backend::Sim, Backend::Grbl, Backend::Switch],
         )?;
-        if l.backend == Backend::Grbl {
-            needs_port(key("backend"), &what, l.backend, &l.port)?;
-        }
-        // A GRBL laser may also be powered through a relay (`bank`, `channel`): both must be
-        // on to emit, and the relay board's watchdog switches it off if stagehand dies.
-        if l.backend == Backend::Switch || (l.backend == Backend::Grbl && l.bank.is_some()) {
-            let Some(bank) = l.bank.as_deref().and_then(|b| spec.bank(b)) else {
-                return Err((
-                    key("backend"),
-                    format!(
-                        "{what}: `bank` must name the switch bank whose relay powers the laser"
-                    ),
-                ));
-            };
-            let channel = l.channel.unwrap_or(0);
-            if channel == 0 || channel > bank.channels {
-                return Err((
-                    key("backend"),
-                    format!(
-                        "{what}: the laser's relay needs `channel` between 1 and {} (bank `{}`)",
-                        bank.channels, bank.id
-                    ),
-                ));
-            }
-            if let Some(lamp) = spec
-                .lamps
-                .iter()
-                .find(|x| x.bank == bank.id && x.channel == channel)
-            {
-                return Err((
-                    key("channel"),
-                    format!(
-                        "{what}: channel {channel} of bank `{}` already powers lamp `{}`",
-                        bank.id, lamp.id
-                    ),
-                ));
-            }
-        }
     }
     if let Some(c) = &spec.cart {
-        let key = |k| vec![Seg::Key("cart"), Seg::Key(k)];
         let what = format!("cart `{}`", c.id);
         backend_for(
-            key("backend"),
+            key("cart", "backend"),
             &what,
             c.backend,
             &[Backend::Sim, Backend::IrBridge],
         )?;
-        baud_ok(key("baud"), &what, c.baud)?;
-        if c.backend == Backend::IrBridge {
-            needs_port(key("backend"), &what, c.backend, &c.port)?;
-        }
-        if !(1..=4).contains(&c.ir_channel) {
-            return Err((
-                key("ir_channel"),
-                format!(
-                    "{what}: ir_channel must be 1–4 (the receiver's channel switch), got {}",
-                    c.ir_channel
-                ),
-            ));
-        }
-        if c.ir_output != "A" && c.ir_output != "B" {
-            return Err((
-                key("ir_output"),
-                format!(
-                    "{what}: ir_output must be \"A\" or \"B\", got `{}`",
-                    c.ir_output
-                ),
-            ));
-        }
-        if !(1..=7).contains(&c.ir_speed_step) {
-            return Err((
-                key("ir_speed_step"),
-                format!("{what}: ir_speed_step must be 1–7, got {}", c.ir_speed_step),
-            ));
-        }
+        baud_ok(key("cart", "baud"), &what, c.baud)?;
     }
     Ok(())
 }

@@ -18,12 +18,15 @@ pub enum RenderError {
     /// The fixture on the stage is neither a built-in scene nor a scene file path.
     #[error(
         "fixture `{0}` is unknown; place one of the built-in scenes ({list}) or give the path of a scene file ending in .toml",
-        list = stagehand_devices::rig::FIXTURES.join(", ")
+        list = crate::scene_file::builtin::FIXTURES.join(", ")
     )]
     UnknownFixture(String),
     /// The fixture's scene file cannot be read or is invalid (the message names file:line:col).
     #[error(transparent)]
     Scene(#[from] crate::scene_file::SceneError),
+    /// The rig's `[sim]` table does not read (unknown key, wrong type).
+    #[error(transparent)]
+    Sim(#[from] crate::render::config::SimError),
     /// The rig's `sim.quality` is not a preset the renderer knows.
     #[error("sim.quality `{0}` is unknown; set it to preview, standard or reference")]
     UnknownQuality(String),

@@ -16,7 +16,7 @@ use super::geometry::{CameraPose, RigAngles, ToSample};
 use super::material::{Material, Model};
 use super::scene::{Hit, Scene, Shading};
 use super::{RenderError, Renderer, lights};
-use crate::world_state::WorldSnapshot;
+use crate::world_snapshot::WorldSnapshot;
 
 /// Depth of a background pixel (no surface along the pixel-centre ray). Real hits are > 0.
 pub const BACKGROUND_DEPTH: f32 = 0.0;
@@ -216,6 +216,7 @@ impl Renderer {
 mod tests {
     use std::collections::BTreeMap;
 
+    use crate::render::config::SimSpec;
     use stagehand_devices::lens::Intrinsics;
     use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, RigSpec, parse_rig};
 
@@ -227,7 +228,7 @@ mod tests {
             c.width = w;
             c.height = h;
         }
-        rig.sim.sample = fixture.into();
+        SimSpec::edit(&mut rig, |s| s.sample = fixture.into()).expect("sim");
         rig
     }
 

@@ -5,7 +5,7 @@ use glam::Vec3A;
 use stagehand_devices::rig::LaserSpec;
 
 use super::geometry::{ToSample, horizontal_tangent, rotate_about, spherical};
-use crate::world_state::LaserBeam;
+use crate::world_snapshot::LaserBeam;
 
 /// Half of the fan's opening angle within the sheet.
 const FAN_HALF_ANGLE_DEG: f32 = 30.0;

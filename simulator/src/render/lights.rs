@@ -9,7 +9,7 @@ use glam::Vec3A;
 use stagehand_devices::rig::{LampKind, RigSpec};
 
 use super::geometry::{RigAngles, ToSample, spherical};
-use crate::world_state::WorldSnapshot;
+use crate::world_snapshot::WorldSnapshot;
 
 /// Distance at which a power-1 lamp gives unit irradiance.
 pub const REFERENCE_DISTANCE_MM: f32 = 800.0;

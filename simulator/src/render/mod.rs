@@ -21,6 +21,7 @@
 //! cameras do) or from inside the rayon pool, not from both at once.
 
 pub mod bounce;
+pub mod config;
 pub mod effects;
 pub mod error;
 pub mod fft;
@@ -53,10 +54,11 @@ use stagehand_devices::rig::{CameraSpec, LampKind, RigSpec};
 
 pub use error::RenderError;
 
-use crate::world_state::WorldSnapshot;
+use crate::render::config::SimSpec;
+use crate::world_snapshot::WorldSnapshot;
 use geometry::{CameraPose, RigAngles, ToSample};
 use laser::LaserSheet;
-use quality::{Knobs, Quality};
+use quality::Knobs;
 use sample::Sample;
 use scene::{Scene, Shading};
 use sensor::Sensor;
@@ -70,6 +72,8 @@ const MAX_SAMPLE_SIZE_MM: f64 = 1000.0;
 #[derive(Debug)]
 pub struct Renderer {
     rig: RigSpec,
+    /// The rig's `[sim]` settings.
+    sim: SimSpec,
     knobs: Knobs,
     samples: Mutex<HashMap<String, Arc<Sample>>>,
     visibility: shadow::VisibilityCache,
@@ -112,26 +116,31 @@ pub struct Rendered {
 impl Renderer {
     /// A renderer for `rig`, at the rig's `sim.quality` preset.
     pub fn new(rig: &RigSpec) -> Result<Renderer, RenderError> {
-        let knobs = Quality::parse(&rig.sim.quality)?
-            .knobs()
-            .with(&rig.sim.knobs)?;
+        let knobs = SimSpec::of(rig)?.render_knobs()?;
         Renderer::with_knobs(rig, knobs)
     }
 
     /// A renderer for `rig` with explicit accuracy knobs (validated).
     pub fn with_knobs(rig: &RigSpec, knobs: Knobs) -> Result<Renderer, RenderError> {
         knobs.validate()?;
-        let size = rig.sim.sample_size_mm;
+        let sim = SimSpec::of(rig)?;
+        let size = sim.sample_size_mm;
         if !(size.is_finite() && size > 0.0 && size <= MAX_SAMPLE_SIZE_MM) {
             return Err(RenderError::InvalidSampleSize(size));
         }
         Ok(Renderer {
             rig: rig.clone(),
+            sim,
             knobs,
             samples: Mutex::new(HashMap::new()),
             visibility: shadow::VisibilityCache::default(),
             passes: TransportCaches::default(),
         })
+    }
+
+    /// The rig's `[sim]` settings this renderer was made with.
+    pub fn sim(&self) -> &SimSpec {
+        &self.sim
     }
 
     /// Black level (dark offset) in digital numbers that the sensor model adds for
@@ -155,9 +164,9 @@ impl Renderer {
         let scene = crate::scene_file::resolve_fixture(fixture)?
             .ok_or_else(|| RenderError::UnknownFixture(fixture.to_string()))?;
         // The scene's [render] settings decide the relief step, so resolve them first.
-        let knobs = sample::scene_knobs(&scene, &self.knobs, &self.rig.sim.knobs)?;
+        let knobs = sample::scene_knobs(&scene, &self.knobs, &self.sim.knobs)?;
         let step_mm = knobs.as_ref().map_or(self.knobs.relief_mm, |k| k.relief_mm);
-        let size_mm = self.rig.sim.sample_size_mm as f32;
+        let size_mm = self.sim.sample_size_mm as f32;
         let mut built = Sample::from_scene(fixture, scene, size_mm, step_mm);
         built.render_knobs = knobs;
         let built = Arc::new(built);

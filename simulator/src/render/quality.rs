@@ -4,7 +4,6 @@
 //! measures each one.
 
 use serde::{Deserialize, Serialize};
-use stagehand_devices::rig::SimKnobs;
 
 use super::error::RenderError;
 
@@ -21,6 +20,16 @@ pub enum Quality {
 }
 
 impl Quality {
+    /// Every preset, fastest first.
+    pub const ALL: [Quality; 3] = [Quality::Preview, Quality::Standard, Quality::Reference];
+
+    /// The preset names for a sentence: `preview, standard or reference`.
+    pub fn names() -> String {
+        let names = Self::ALL.map(Quality::name);
+        let (last, rest) = names.split_last().unwrap_or((&"", &[]));
+        format!("{} or {last}", rest.join(", "))
+    }
+
     /// Parses the preset name.
     pub fn parse(name: &str) -> Result<Quality, RenderError> {
         match name {
@@ -81,6 +90,32 @@ impl Quality {
             },
         }
     }
+}
+
+/// Overrides of the renderer's accuracy knobs (a rig's `[sim.knobs]`, a scene's
+/// `[render.knobs]`); each unset knob keeps the preset's value. Each field is the [`Knobs`]
+/// field of the same name; an unknown key or a wrong type is an error at file:line:col.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimKnobs {
+    /// Side of the stratified sub-pixel grid (samples per pixel = side²).
+    pub spp_side: Option<u32>,
+    /// Points on each halogen lamp's disk per pixel (1 = point light).
+    pub halogen_samples: Option<u32>,
+    /// Points along the reflectometer tube per pixel.
+    pub tube_samples: Option<u32>,
+    /// Most interreflection bounces.
+    pub bounces: Option<u32>,
+    /// Hemisphere rays per relief texel per bounce.
+    pub bounce_rays: Option<u32>,
+    /// Relative bound below which a bounce is skipped.
+    pub bounce_tolerance: Option<f32>,
+    /// Relief grid and march step in mm.
+    pub relief_mm: Option<f32>,
+    /// Per-vertex shadow maps instead of exact shadow rays.
+    pub shadow_maps: Option<bool>,
+    /// Dipole kernel samples per mean free path.
+    pub dipole_samples: Option<u32>,
 }
 
 /// Every accuracy knob of the renderer. Start from a preset ([`Quality::knobs`]) and

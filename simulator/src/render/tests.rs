@@ -2,11 +2,12 @@
 
 use std::collections::BTreeMap;
 
+use crate::render::config::SimSpec;
 use glam::Vec3A;
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, BUILTIN_REFLECTOMETER, RigSpec, parse_rig};
 
 use super::*;
-use crate::world_state::LaserBeam;
+use crate::world_snapshot::LaserBeam;
 
 const W: u32 = 64;
 const H: u32 = 48;
@@ -17,7 +18,7 @@ fn small(text: &str, fixture: &str) -> RigSpec {
         c.width = W;
         c.height = H;
     }
-    rig.sim.sample = fixture.into();
+    SimSpec::edit(&mut rig, |s| s.sample = fixture.into()).expect("sim");
     rig
 }
 
@@ -429,7 +430,7 @@ fn errors_say_what_to_do() {
         Err(RenderError::NoLaser(_))
     ));
     let mut bad = small(BUILTIN_LIGHTSTAGE, "flat");
-    bad.sim.quality = "ultra".into();
+    SimSpec::edit(&mut bad, |s| s.quality = "ultra".into()).expect("sim");
     assert!(matches!(
         Renderer::new(&bad),
         Err(RenderError::UnknownQuality(_))
@@ -441,7 +442,7 @@ fn errors_say_what_to_do() {
 #[test]
 fn notes_record_quality_and_samples() {
     let mut rig = small(BUILTIN_LIGHTSTAGE, "bumps");
-    rig.sim.quality = "standard".into();
+    SimSpec::edit(&mut rig, |s| s.quality = "standard".into()).expect("sim");
     let r = Renderer::new(&rig).expect("renderer");
     let out = r
         .render(&world("bumps", &[("lamp6", 1.0)]), "cam2", 0.02, 1.0, 1)
@@ -617,7 +618,7 @@ fn cavity_grooves_plan_and_run_interreflection() {
     // The bumps scene with a dark turntable-like albedo stays consistent: a convex dome-free
     // flat region never plans bounces (checked above); here, zero bounces turn it off.
     let mut rig = small(BUILTIN_LIGHTSTAGE, "cavity");
-    rig.sim.knobs.bounces = Some(0);
+    SimSpec::edit(&mut rig, |s| s.knobs.bounces = Some(0)).expect("sim");
     let r0 = Renderer::new(&rig).expect("renderer");
     let out0 = r0.radiance(&w, "cam1").expect("render");
     let ir0 = &out0.notes["effects"]["interreflection"];

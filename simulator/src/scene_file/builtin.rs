@@ -1,8 +1,7 @@
 //! The built-in scenes, one per fixture name, embedded in the binary so a rig's `sim.sample`
 //! or a script's `prompt(fixture=...)` can name them without any files.
 
-/// Every built-in scene as (fixture name, TOML text), in the order of
-/// [`stagehand_devices::rig::FIXTURES`].
+/// Every built-in scene as (fixture name, TOML text); the names are [`FIXTURES`].
 pub const BUILTIN_SCENES: [(&str, &str); 13] = [
     ("flat", include_str!("../../scenes/flat.toml")),
     ("bumps", include_str!("../../scenes/bumps.toml")),
@@ -31,6 +30,19 @@ pub const BUILTIN_SCENES: [(&str, &str); 13] = [
     ("cavity", include_str!("../../scenes/cavity.toml")),
 ];
 
+/// Fixtures that can lie on the stage (procedural samples and calibration targets): the names
+/// of the built-in scenes. The rig's `sim.sample`, operator prompts and the renderer all draw
+/// from this one list.
+pub const FIXTURES: [&str; BUILTIN_SCENES.len()] = {
+    let mut names = [""; BUILTIN_SCENES.len()];
+    let mut i = 0;
+    while i < names.len() {
+        names[i] = BUILTIN_SCENES[i].0;
+        i += 1;
+    }
+    names
+};
+
 /// The text of the built-in scene `name`, if there is one.
 pub fn builtin_scene(name: &str) -> Option<&'static str> {
     BUILTIN_SCENES
@@ -42,13 +54,6 @@ pub fn builtin_scene(name: &str) -> Option<&'static str> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use stagehand_devices::rig::FIXTURES;
-
-    #[test]
-    fn fixtures_and_builtin_scenes_agree_exactly() {
-        let names: Vec<&str> = BUILTIN_SCENES.iter().map(|(n, _)| *n).collect();
-        assert_eq!(names, FIXTURES.to_vec());
-    }
 
     #[test]
     fn every_builtin_scene_parses_and_is_named_after_its_fixture() {

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use glam::Vec3A;
-use stagehand_devices::rig::{Seg, line_col, locate};
+use stagehand_devices::rig::span::{Seg, line_col, locate};
 
 use super::error::SceneError;
 use super::image::{ImageMap, MapKind, read_png};

@@ -3,8 +3,8 @@
 
 use std::path::PathBuf;
 
+use crate::render::quality::SimKnobs;
 use glam::Vec3A;
-use stagehand_devices::rig::SimKnobs;
 
 use super::image::ImageMap;
 use super::mesh::Mesh;

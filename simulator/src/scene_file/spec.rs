@@ -1,8 +1,8 @@
 //! The scene file schema as written in TOML. Every table rejects unknown keys; values are
 //! range-checked by [`super::load`], which also resolves names and loads referenced files.
 
+use crate::render::quality::SimKnobs;
 use serde::Deserialize;
-use stagehand_devices::rig::SimKnobs;
 
 /// A whole scene file.
 #[derive(Debug, Clone, PartialEq, Deserialize)]

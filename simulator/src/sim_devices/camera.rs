@@ -13,7 +13,7 @@ use stagehand_devices::{DeviceError, DeviceErrorKind};
 use tokio::sync::broadcast;
 
 use crate::world::{Pulse, World};
-use crate::world_state::WorldSnapshot;
+use crate::world_snapshot::WorldSnapshot;
 
 /// Simulated camera driver.
 pub struct SimCamera {
@@ -51,7 +51,7 @@ impl SimCamera {
         &mut self,
         snapshot: &WorldSnapshot,
     ) -> DeviceResult<Option<Arc<GroundTruthData>>> {
-        if !self.world.rig().sim.ground_truth {
+        if !self.world.sim().ground_truth {
             return Ok(None);
         }
         let key = WorldSnapshot {

@@ -53,7 +53,7 @@ pub fn status_of(app: &AppState) -> Status {
         rig: RigInfo {
             name: app.rig_source.spec.rig.name.clone(),
             origin: app.rig_source.origin.clone(),
-            simulated: !crate::hardware::needs_real_time(&app.rig_source.spec),
+            simulated: !crate::rig::needs_real_time(&app.rig_source.spec),
             emulated: app.emulation.is_some(),
         },
         estop: app.estop.is_latched(),

@@ -1,7 +1,7 @@
 //! The knobs frames of a scene are rendered with: the scene's `[render]` quality and knobs on
 //! top of the rig's.
 
-use stagehand_devices::rig::SimKnobs;
+use crate::render::quality::SimKnobs;
 
 use crate::render::error::RenderError;
 use crate::render::quality::Knobs;

@@ -15,13 +15,13 @@ mod procedural;
 mod relief;
 mod texel;
 
-use stagehand_devices::rig::SimKnobs;
+use crate::render::quality::SimKnobs;
 
 pub use super::material::{Material, Medium};
+pub use crate::scene_file::builtin::FIXTURES;
 pub use charts::{colorchecker_patch, srgb_to_linear};
 pub use knobs::scene_knobs;
 pub use procedural::BUMPS_SEED;
-pub use stagehand_devices::rig::FIXTURES;
 
 use super::error::RenderError;
 use super::heightfield::HeightGrid;

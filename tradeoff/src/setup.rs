@@ -7,8 +7,8 @@ use std::collections::BTreeMap;
 use stagehand_devices::rig::{AxisRole, BUILTIN_LIGHTSTAGE, LampKind, RigSpec, parse_rig};
 
 use super::TradeoffError;
-use crate::render::{RenderError, Renderer, quality::Quality};
-use crate::world_state::WorldSnapshot;
+use stagehand_simulator::render::{RenderError, Renderer, quality::Quality};
+use stagehand_simulator::world_snapshot::WorldSnapshot;
 
 /// Largest camera edge accepted, in pixels.
 pub const MAX_EDGE_PX: u32 = 4096;

@@ -14,8 +14,8 @@ use super::TradeoffError;
 use super::peer::PeerPoint;
 use super::sweep::{Point, Tradeoff};
 
-/// DejaVu Sans (licence in `simulator/assets/DejaVuSans-LICENSE.txt`).
-static FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
+/// DejaVu Sans (licence in `tradeoff/assets/DejaVuSans-LICENSE.txt`).
+static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
 const FAMILY: &str = "sans-serif";
 /// Plot size in pixels (PNG) and user units (SVG).
 pub const SIZE: (u32, u32) = (1200, 800);

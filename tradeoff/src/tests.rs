@@ -1,12 +1,12 @@
 //! End to end: a tiny sweep on a 32×24 camera writes all four outputs.
 
 use super::*;
-use crate::render::quality::Quality;
+use stagehand_simulator::render::quality::Quality;
 
 /// A cheap sweep: coarse relief everywhere (so sample build and bounce set-up are small) and
 /// a handful of settings.
 fn tiny_config() -> SweepConfig {
-    let coarse = |mut k: crate::render::quality::Knobs| {
+    let coarse = |mut k: stagehand_simulator::render::quality::Knobs| {
         k.relief_mm = 1.0;
         k.bounce_rays = k.bounce_rays.min(8);
         k

@@ -1,4 +1,6 @@
-//! What accuracy costs in time: `stagehand sim tradeoff`.
+//! What accuracy costs in time: `stagehand-tradeoff`, also run as `stagehand sim tradeoff`.
+//! A crate of its own (on the simulator's renderer) so that plotting and its bundled font stay
+//! out of the simulator library and the daemon.
 //!
 //! For one scene on the built-in light stage under a fixed lighting state ([`setup`]), render a
 //! converged reference, then sweep each accuracy knob one at a time from the standard preset
@@ -9,6 +11,9 @@
 //! Mitsuba 3, [`peer`] reads its timings back and [`equal_error`] compares the two renderers
 //! at equal error. [`pfm`] reads and writes the float images they exchange.
 
+#![deny(unsafe_code)]
+
+pub mod cli;
 pub mod equal_error;
 pub mod error;
 pub mod metrics;

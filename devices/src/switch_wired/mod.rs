@@ -2,6 +2,8 @@
 //! a switch-bank channel (alone, or in series with a GRBL spindle output), and a camera trigger
 //! on a relay board's GPIO line (backend `switch`).
 
+pub(crate) mod wiring;
+
 use std::sync::Arc;
 
 use crate::clock::duration_s;

@@ -13,8 +13,8 @@ use serde_json::Value;
 use super::metrics::{self, ErrorMetrics};
 use super::pareto::{self, Cost, Target};
 use super::{Setup, TradeoffError};
-use crate::render::quality::{Knobs, Quality};
-use crate::render::{RadianceImage, Renderer};
+use stagehand_simulator::render::quality::{Knobs, Quality};
+use stagehand_simulator::render::{RadianceImage, Renderer};
 
 /// One knob setting to measure.
 #[derive(Debug, Clone, PartialEq)]

@@ -2,7 +2,7 @@
 
 use thiserror::Error;
 
-use crate::render::RenderError;
+use stagehand_simulator::render::RenderError;
 
 /// A failed sweep or output; `is_bad_input` tells input mistakes from failures.
 #[derive(Debug, Error)]

@@ -25,10 +25,11 @@ use glam::Vec3A;
 use serde_json::json;
 
 use super::{Setup, TradeoffError};
-use crate::render::RenderError;
-use crate::render::geometry::{CameraPose, RigAngles, ToSample};
-use crate::render::lights::{self, Emitter, HALOGEN_RADIUS_MM, TURNTABLE_RADIUS_MM};
-use crate::render::sample::Sample;
+use stagehand_simulator::render::RenderError;
+use stagehand_simulator::render::config::SimSpec;
+use stagehand_simulator::render::geometry::{CameraPose, RigAngles, ToSample};
+use stagehand_simulator::render::lights::{self, Emitter, HALOGEN_RADIUS_MM, TURNTABLE_RADIUS_MM};
+use stagehand_simulator::render::sample::Sample;
 
 /// Albedo of the turntable around the sample (the renderer's dark grey).
 pub const TURNTABLE_ALBEDO: f32 = 0.05;
@@ -227,15 +228,14 @@ pub fn export(
     std::fs::create_dir_all(dir).map_err(|e| TradeoffError::io(dir, e))?;
     let rig = &setup.rig;
     let world = &setup.world;
-    let sample = Sample::build(&world.fixture, rig.sim.sample_size_mm as f32, relief_mm).map_err(
-        |e| match e {
-            RenderError::UnknownFixture(_) => TradeoffError::UnknownScene {
-                scene: world.fixture.clone(),
-                detail: e.to_string(),
-            },
-            other => other.into(),
+    let size_mm = SimSpec::of(rig).map_err(RenderError::from)?.sample_size_mm;
+    let sample = Sample::build(&world.fixture, size_mm as f32, relief_mm).map_err(|e| match e {
+        RenderError::UnknownFixture(_) => TradeoffError::UnknownScene {
+            scene: world.fixture.clone(),
+            detail: e.to_string(),
         },
-    )?;
+        other => other.into(),
+    })?;
     let lambert = sample.max_ks <= 0.0 && sample.media.is_empty();
     if world.laser.is_some() {
         return Err(TradeoffError::Export(
@@ -327,7 +327,7 @@ pub fn export(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::tradeoff::SetupOptions;
+    use crate::SetupOptions;
 
     /// Header counts and body size of a binary PLY.
     fn ply_counts(bytes: &[u8]) -> (usize, usize, usize) {
@@ -414,8 +414,7 @@ mod tests {
                 .expect("valid json");
         assert_eq!(scene["emitters"].as_array().map(Vec::len), Some(2));
         assert_eq!(scene["camera"]["width"], 32);
-        let (w, h, rgb) =
-            crate::tradeoff::pfm::read(&dir.path().join("albedo.pfm")).expect("albedo");
+        let (w, h, rgb) = crate::pfm::read(&dir.path().join("albedo.pfm")).expect("albedo");
         assert_eq!((w as usize, h as usize), (e.texels, e.texels));
         assert!(
             rgb.iter().all(|&a| (a - 0.8).abs() < 1e-6),

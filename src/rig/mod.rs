@@ -1,5 +1,18 @@
-//! A running rig: one actor handle per device, built from a rig description, plus the simulated
-//! World when the devices are simulated.
+//! The running rig: one actor handle per device, built from a rig description, plus the
+//! simulated World when devices are simulated or emulated. Opening the devices is split by
+//! kind (`axes`, `switches`, `laser`, `trigger`, `cart`, `cameras`, ordered by `open`);
+//! `emulation` puts firmware emulators behind the real drivers; `port_lock` makes one process
+//! the owner of the rig's real ports.
+
+mod axes;
+mod cameras;
+mod cart;
+mod emulation;
+mod laser;
+mod open;
+pub mod port_lock;
+mod switches;
+mod trigger;
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -18,7 +31,10 @@ use stagehand_devices::trigger::TriggerHandle;
 use stagehand_devices::{DeviceError, DeviceResult};
 use stagehand_simulator::World;
 
-use crate::hardware::{Emulation, Emulators, needs_real_time, needs_world, open_devices};
+pub use emulation::{Emulation, Emulators};
+pub use open::{lock_real_ports, needs_real_time};
+
+use open::{needs_world, open_devices};
 
 /// A rig description together with the text it was read from (stored in every run).
 #[derive(Debug, Clone)]
@@ -47,10 +63,13 @@ impl RigSource {
         }
     }
 
-    /// Parses rig text given inline (e.g. the snapshot stored in a run's manifest).
+    /// Parses rig text given inline (e.g. the snapshot stored in a run's manifest): the device
+    /// layer checks the devices, the simulator the `[sim]` table, both at file:line:col.
     pub fn from_text(text: &str, origin: &str) -> Result<RigSource, RigError> {
+        let spec = parse_rig(text, origin)?;
+        stagehand_simulator::render::config::check_rig(text, origin)?;
         Ok(RigSource {
-            spec: parse_rig(text, origin)?,
+            spec,
             text: text.to_string(),
             origin: origin.to_string(),
         })
@@ -89,7 +108,7 @@ pub struct Rig {
 #[derive(Debug, thiserror::Error)]
 pub enum OpenError {
     #[error(
-        "{device}: backend `{backend:?}` has no driver in this build; rebuild with `--features {feature}` (see the README) or use backend = \"sim\""
+        "{device}: backend `{}` has no driver in this build; rebuild with `--features {feature}` (see the README) or use backend = \"sim\"", backend.as_str()
     )]
     NoDriver {
         device: String,
@@ -104,7 +123,13 @@ pub enum OpenError {
     Simulator(String),
     /// A real port is held by another process (the daemon, or another `run`).
     #[error("{0}")]
-    PortLock(#[from] crate::port_lock::PortLockError),
+    PortLock(#[from] port_lock::PortLockError),
+}
+
+impl From<DeviceError> for OpenError {
+    fn from(e: DeviceError) -> Self {
+        OpenError::Device(Box::new(e))
+    }
 }
 
 impl Rig {
@@ -115,7 +140,7 @@ impl Rig {
     }
 
     /// Like [`Rig::open`]; with `emulation`, the real drivers talk to firmware emulators on
-    /// pseudo-terminals in place of the rig's ports (see [`crate::hardware`]).
+    /// pseudo-terminals in place of the rig's ports (see [`Emulation`]).
     pub fn open_with(
         spec: RigSpec,
         clock: RigClock,
@@ -137,19 +162,7 @@ impl Rig {
             Interlock::not_fitted()
         };
         let devices = open_devices(&spec, &world, emulation, &interlock)?;
-        let lamps = spec
-            .lamps
-            .iter()
-            .map(|l| {
-                (
-                    l.id.clone(),
-                    LampWiring {
-                        bank: l.bank.clone(),
-                        channel: l.channel,
-                    },
-                )
-            })
-            .collect();
+        let lamps = switches::lamps(&spec);
         Ok(Rig {
             spec,
             clock,
