@@ -1,0 +1,26 @@
+//! Processing of captured runs into calibrated measurements: pure computation on pixel arrays,
+//! with no devices and no async. Every ill-posed case is a typed error, never a NaN.
+//!
+//! | file | concept |
+//! |---|---|
+//! | [`weight`] | the hat weight of a digital number inside the usable range |
+//! | [`response_curve`] | an inverse camera response g = ln f⁻¹ on knots over the DN range |
+//! | [`response_samples`] | choosing pixels of a bracket for the response fit |
+//! | [`response_solve`] | Debevec–Malik least squares for g |
+//! | [`hdr`] | merging a bracket into radiance through an inverse response |
+//! | [`error`] | typed errors |
+#![deny(unsafe_code)]
+
+pub mod error;
+pub mod hdr;
+pub mod response_curve;
+pub mod response_samples;
+pub mod response_solve;
+pub mod weight;
+
+pub use error::ProcessingError;
+pub use hdr::{HdrPixel, MergeWeight, merge_bracket};
+pub use response_curve::InverseResponse;
+pub use response_samples::{Bracket, BracketImage, Sample, select_samples};
+pub use response_solve::{ResponseFit, ResponseParams, solve_response};
+pub use weight::DnRange;
