@@ -8,16 +8,26 @@
 //! | [`response_samples`] | choosing pixels of a bracket for the response fit |
 //! | [`response_solve`] | Debevec–Malik least squares for g |
 //! | [`hdr`] | merging a bracket into radiance through an inverse response |
+//! | [`camera_model`] | pinhole camera, Brown–Conrady distortion, poses |
+//! | [`homography`] | plane-to-image homographies by normalised DLT |
+//! | [`zhang`] | Zhang's closed-form intrinsics and poses from homographies |
+//! | [`calibrate_camera`] | one camera's calibration: closed form, then Levenberg–Marquardt |
 //! | [`error`] | typed errors |
 #![deny(unsafe_code)]
 
+pub mod calibrate_camera;
+pub mod camera_model;
 pub mod error;
 pub mod hdr;
+pub mod homography;
 pub mod response_curve;
 pub mod response_samples;
 pub mod response_solve;
 pub mod weight;
+pub mod zhang;
 
+pub use calibrate_camera::{BoardView, CalibrationOptions, CameraCalibration, calibrate_camera};
+pub use camera_model::{CameraModel, Distortion, Intrinsics, Pose};
 pub use error::ProcessingError;
 pub use hdr::{HdrPixel, MergeWeight, merge_bracket};
 pub use response_curve::InverseResponse;
