@@ -8,6 +8,9 @@
 //! | [`response_samples`] | choosing pixels of a bracket for the response fit |
 //! | [`response_solve`] | Debevec–Malik least squares for g |
 //! | [`hdr`] | merging a bracket into radiance through an inverse response |
+//! | [`gray_image`] | a grayscale f32 image, bilinear sampling, Gaussian smoothing |
+//! | [`corner_subpix`] | sub-pixel refinement of a checkerboard corner |
+//! | [`checkerboard`] | checkerboard corner detection and grid ordering |
 //! | [`camera_model`] | pinhole camera, Brown–Conrady distortion, poses |
 //! | [`homography`] | plane-to-image homographies by normalised DLT |
 //! | [`zhang`] | Zhang's closed-form intrinsics and poses from homographies |
@@ -17,7 +20,10 @@
 
 pub mod calibrate_camera;
 pub mod camera_model;
+pub mod checkerboard;
+pub mod corner_subpix;
 pub mod error;
+pub mod gray_image;
 pub mod hdr;
 pub mod homography;
 pub mod response_curve;
@@ -28,7 +34,9 @@ pub mod zhang;
 
 pub use calibrate_camera::{BoardView, CalibrationOptions, CameraCalibration, calibrate_camera};
 pub use camera_model::{CameraModel, Distortion, Intrinsics, Pose};
+pub use checkerboard::{CheckerboardSpec, detect_checkerboard};
 pub use error::ProcessingError;
+pub use gray_image::GrayImage;
 pub use hdr::{HdrPixel, MergeWeight, merge_bracket};
 pub use response_curve::InverseResponse;
 pub use response_samples::{Bracket, BracketImage, Sample, select_samples};
