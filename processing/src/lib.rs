@@ -15,6 +15,7 @@
 //! | [`homography`] | plane-to-image homographies by normalised DLT |
 //! | [`zhang`] | Zhang's closed-form intrinsics and poses from homographies |
 //! | [`calibrate_camera`] | one camera's calibration: closed form, then Levenberg–Marquardt |
+//! | [`white_balance`] | joint camera+lamp channel scales from the colour checker |
 //! | [`error`] | typed errors |
 #![deny(unsafe_code)]
 
@@ -30,6 +31,7 @@ pub mod response_curve;
 pub mod response_samples;
 pub mod response_solve;
 pub mod weight;
+pub mod white_balance;
 pub mod zhang;
 
 pub use calibrate_camera::{BoardView, CalibrationOptions, CameraCalibration, calibrate_camera};
@@ -42,3 +44,4 @@ pub use response_curve::InverseResponse;
 pub use response_samples::{Bracket, BracketImage, Sample, select_samples};
 pub use response_solve::{ResponseFit, ResponseParams, solve_response};
 pub use weight::DnRange;
+pub use white_balance::{PatchMeasurement, WhiteBalance, white_balance};
