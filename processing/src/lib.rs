@@ -15,6 +15,7 @@
 //! | [`homography`] | plane-to-image homographies by normalised DLT |
 //! | [`zhang`] | Zhang's closed-form intrinsics and poses from homographies |
 //! | [`calibrate_camera`] | one camera's calibration: closed form, then Levenberg–Marquardt |
+//! | [`rectify`] | resampling a view onto the reference plane with area averaging |
 //! | [`white_balance`] | joint camera+lamp channel scales from the colour checker |
 //! | [`error`] | typed errors |
 #![deny(unsafe_code)]
@@ -27,6 +28,7 @@ pub mod error;
 pub mod gray_image;
 pub mod hdr;
 pub mod homography;
+pub mod rectify;
 pub mod response_curve;
 pub mod response_samples;
 pub mod response_solve;
@@ -40,6 +42,7 @@ pub use checkerboard::{CheckerboardSpec, detect_checkerboard};
 pub use error::ProcessingError;
 pub use gray_image::GrayImage;
 pub use hdr::{HdrPixel, MergeWeight, merge_bracket};
+pub use rectify::{Image, Rectified, RectifyGrid, rectify};
 pub use response_curve::InverseResponse;
 pub use response_samples::{Bracket, BracketImage, Sample, select_samples};
 pub use response_solve::{ResponseFit, ResponseParams, solve_response};
