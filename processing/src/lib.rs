@@ -15,6 +15,7 @@
 //! | [`homography`] | plane-to-image homographies by normalised DLT |
 //! | [`zhang`] | Zhang's closed-form intrinsics and poses from homographies |
 //! | [`calibrate_camera`] | one camera's calibration: closed form, then Levenberg–Marquardt |
+//! | [`rig_frame`] | the turntable axis and the rig frame from flat board placements |
 //! | [`rectify`] | resampling a view onto the reference plane with area averaging |
 //! | [`white_balance`] | joint camera+lamp channel scales from the colour checker |
 //! | [`error`] | typed errors |
@@ -32,6 +33,7 @@ pub mod rectify;
 pub mod response_curve;
 pub mod response_samples;
 pub mod response_solve;
+pub mod rig_frame;
 pub mod weight;
 pub mod white_balance;
 pub mod zhang;
@@ -46,5 +48,6 @@ pub use rectify::{Image, Rectified, RectifyGrid, rectify};
 pub use response_curve::InverseResponse;
 pub use response_samples::{Bracket, BracketImage, Sample, select_samples};
 pub use response_solve::{ResponseFit, ResponseParams, solve_response};
+pub use rig_frame::{TurntableAxis, rig_to_camera, turntable_axis};
 pub use weight::DnRange;
 pub use white_balance::{PatchMeasurement, WhiteBalance, white_balance};
