@@ -7,7 +7,7 @@
 //! | [`response_curve`] | an inverse camera response g = ln f⁻¹ on knots over the DN range |
 //! | [`response_samples`] | choosing pixels of a bracket for the response fit |
 //! | [`response_solve`] | Debevec–Malik least squares for g |
-//! | [`hdr`] | merging a bracket into radiance through an inverse response |
+//! | [`hdr_frame`] | merging RGB frames through per-channel responses and white balance |
 //! | [`gray_image`] | a grayscale f32 image, bilinear sampling, Gaussian smoothing |
 //! | [`corner_subpix`] | sub-pixel refinement of a checkerboard corner |
 //! | [`checkerboard`] | checkerboard corner detection and grid ordering |
@@ -27,7 +27,7 @@ pub mod checkerboard;
 pub mod corner_subpix;
 pub mod error;
 pub mod gray_image;
-pub mod hdr;
+pub mod hdr_frame;
 pub mod homography;
 pub mod rectify;
 pub mod response_curve;
@@ -43,7 +43,7 @@ pub use camera_model::{CameraModel, Distortion, Intrinsics, Pose};
 pub use checkerboard::{CheckerboardSpec, detect_checkerboard};
 pub use error::ProcessingError;
 pub use gray_image::GrayImage;
-pub use hdr::{HdrPixel, MergeWeight, merge_bracket};
+pub use hdr_frame::{HdrFrame, MergeWeight, PixelState, RgbExposure, merge_rgb_frames};
 pub use rectify::{Image, Rectified, RectifyGrid, rectify};
 pub use response_curve::InverseResponse;
 pub use response_samples::{Bracket, BracketImage, Sample, select_samples};
