@@ -18,10 +18,12 @@
 //! | [`rig_frame`] | the turntable axis and the rig frame from flat board placements |
 //! | [`rectify`] | resampling a view onto the reference plane with area averaging |
 //! | [`white_balance`] | joint camera+lamp channel scales from the colour checker |
+//! | [`calibration_store`] | calibrations as content-addressed, versioned artefacts |
 //! | [`error`] | typed errors |
 #![deny(unsafe_code)]
 
 pub mod calibrate_camera;
+pub mod calibration_store;
 pub mod camera_model;
 pub mod checkerboard;
 pub mod corner_subpix;
