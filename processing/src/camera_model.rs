@@ -3,7 +3,7 @@
 //! p1, p2 distortion, and a pose (world → camera) as a Rodrigues rotation vector and a
 //! translation. Projection follows OpenCV's convention, so its results compare directly.
 
-use nalgebra::{Rotation3, Vector2, Vector3};
+use nalgebra::{Rotation3, UnitQuaternion, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// Focal lengths and principal point, in pixels (no skew: square-pixel sensors).
@@ -81,10 +81,13 @@ impl Pose {
         Rotation3::new(Vector3::from(self.rotation))
     }
 
-    /// A pose from a rotation matrix and translation.
+    /// A pose from a rotation matrix and translation. The rotation vector goes through a unit
+    /// quaternion: `Rotation3::scaled_axis` loses the axis at exactly 180° (a board turned
+    /// half way on the turntable), the quaternion's logarithm does not.
     pub fn from_parts(rotation: &Rotation3<f64>, translation: Vector3<f64>) -> Pose {
+        let q = UnitQuaternion::from_rotation_matrix(rotation);
         Pose {
-            rotation: rotation.scaled_axis().into(),
+            rotation: q.scaled_axis().into(),
             translation: translation.into(),
         }
     }
@@ -149,6 +152,27 @@ mod tests {
             let (xd, yd) = d.apply(x, y);
             let (ux, uy) = d.remove(xd, yd).unwrap();
             assert!((ux - x).abs() < 1e-10 && (uy - y).abs() < 1e-10, "{x},{y}");
+        }
+    }
+
+    #[test]
+    fn poses_round_trip_through_half_turns() {
+        for angle in [0.0f64, 90.0, 179.99, 180.0] {
+            for axis in [
+                Vector3::new(0.3, -0.8, 0.52),
+                Vector3::new(0.0, 0.6, -0.8),
+                Vector3::new(1.0, 0.0, 0.0),
+            ] {
+                let r = Rotation3::from_axis_angle(
+                    &nalgebra::Unit::new_normalize(axis),
+                    angle.to_radians(),
+                );
+                let back = Pose::from_parts(&r, Vector3::zeros()).rotation_matrix();
+                assert!(
+                    (back.matrix() - r.matrix()).norm() < 1e-9,
+                    "{angle}° about {axis:?}"
+                );
+            }
         }
     }
 

@@ -15,6 +15,7 @@
 //! | [`homography`] | plane-to-image homographies by normalised DLT |
 //! | [`zhang`] | Zhang's closed-form intrinsics and poses from homographies |
 //! | [`calibrate_camera`] | one camera's calibration: closed form, then Levenberg–Marquardt |
+//! | [`calibrate_geometry`] | every camera calibrated and placed in the rig frame |
 //! | [`rig_frame`] | the turntable axis and the rig frame from flat board placements |
 //! | [`rectify`] | resampling a view onto the reference plane with area averaging |
 //! | [`white_balance`] | joint camera+lamp channel scales from the colour checker |
@@ -23,6 +24,7 @@
 #![deny(unsafe_code)]
 
 pub mod calibrate_camera;
+pub mod calibrate_geometry;
 pub mod calibration_store;
 pub mod camera_model;
 pub mod checkerboard;
