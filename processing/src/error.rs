@@ -41,4 +41,12 @@ pub enum ProcessingError {
     },
     #[error("the {what} is ill-posed: {why}")]
     IllPosed { what: &'static str, why: String },
+    #[error("run {run}: {message}")]
+    Dataset { run: String, message: String },
+    #[error("run {run} has no {what}; {hint}")]
+    MissingInput {
+        run: String,
+        what: String,
+        hint: &'static str,
+    },
 }

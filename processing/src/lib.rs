@@ -7,6 +7,7 @@
 //! | [`response_curve`] | an inverse camera response g = ln f⁻¹ on knots over the DN range |
 //! | [`response_samples`] | choosing pixels of a bracket for the response fit |
 //! | [`response_solve`] | Debevec–Malik least squares for g |
+//! | [`response_calibration`] | every camera's response from a run's bracket sweep |
 //! | [`hdr_frame`] | merging RGB frames through per-channel responses and white balance |
 //! | [`gray_image`] | a grayscale f32 image, bilinear sampling, Gaussian smoothing |
 //! | [`corner_subpix`] | sub-pixel refinement of a checkerboard corner |
@@ -19,6 +20,7 @@
 //! | [`rig_frame`] | the turntable axis and the rig frame from flat board placements |
 //! | [`rectify`] | resampling a view onto the reference plane with area averaging |
 //! | [`white_balance`] | joint camera+lamp channel scales from the colour checker |
+//! | [`run_frames`] | a run's raw brackets, listed and decoded one at a time |
 //! | [`calibration_store`] | calibrations as content-addressed, versioned artefacts |
 //! | [`error`] | typed errors |
 #![deny(unsafe_code)]
@@ -34,10 +36,12 @@ pub mod gray_image;
 pub mod hdr_frame;
 pub mod homography;
 pub mod rectify;
+pub mod response_calibration;
 pub mod response_curve;
 pub mod response_samples;
 pub mod response_solve;
 pub mod rig_frame;
+pub mod run_frames;
 pub mod weight;
 pub mod white_balance;
 pub mod zhang;
