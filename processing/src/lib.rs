@@ -22,6 +22,7 @@
 //! | [`white_balance`] | joint camera+lamp channel scales from the colour checker |
 //! | [`run_frames`] | a run's raw brackets, listed and decoded one at a time |
 //! | [`calibration_store`] | calibrations as content-addressed, versioned artefacts |
+//! | [`zarr_array`] | a Zarr v3 array writer (uncompressed chunks) for the BTF |
 //! | [`error`] | typed errors |
 #![deny(unsafe_code)]
 
@@ -44,6 +45,7 @@ pub mod rig_frame;
 pub mod run_frames;
 pub mod weight;
 pub mod white_balance;
+pub mod zarr_array;
 pub mod zhang;
 
 pub use calibrate_camera::{BoardView, CalibrationOptions, CameraCalibration, calibrate_camera};
