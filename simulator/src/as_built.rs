@@ -12,8 +12,10 @@
 use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
-use stagehand_devices::rig::RigSpec;
+use serde_json::{Value, json};
+use stagehand_devices::rig::{CameraSpec, RigSpec};
 
+use crate::render::geometry::{CameraPose, ToSample};
 use crate::render::rng::{hash3, mix64};
 use crate::render::sensor::Response;
 
@@ -43,8 +45,8 @@ pub struct CameraAsBuilt {
     pub focal_scale: f64,
     /// Principal point offset added to the rig file's, pixels (x right, y down).
     pub principal_offset_px: [f64; 2],
-    /// Brown–Conrady k1, k2, p1, p2, k3 replacing the rig file's.
-    pub lens: [f64; 5],
+    /// Brown–Conrady k1, k2, p1, p2, k3 replacing the rig file's (`None` keeps them).
+    pub lens: Option<[f64; 5]>,
     /// Extra rotation of the camera about its right, up and forward axes, degrees.
     pub rotation_deg: [f64; 3],
     /// Offset of the camera's centre in the world frame, mm.
@@ -61,7 +63,7 @@ impl CameraAsBuilt {
         CameraAsBuilt {
             focal_scale: 1.0,
             principal_offset_px: [0.0; 2],
-            lens: [0.0; 5],
+            lens: None,
             rotation_deg: [0.0; 3],
             position_mm: [0.0; 3],
             response: [crate::render::sensor::RESPONSE_CURVATURE as f32; 3],
@@ -76,6 +78,43 @@ impl CameraAsBuilt {
         } else {
             Response::Gentle(self.response)
         }
+    }
+}
+
+impl CameraAsBuilt {
+    /// `nominal` with this camera's focal length, principal point and lens.
+    pub fn spec(&self, nominal: &CameraSpec) -> CameraSpec {
+        let half_width = 0.5 * f64::from(nominal.width);
+        let focal = half_width / (0.5 * nominal.fov_deg.to_radians()).tan() * self.focal_scale;
+        let [k1, k2, p1, p2, k3] = self
+            .lens
+            .unwrap_or([nominal.k1, nominal.k2, nominal.p1, nominal.p2, nominal.k3]);
+        CameraSpec {
+            // Exactly the rig file's for a nominal camera, so its frames stay bit for bit.
+            fov_deg: if self.focal_scale == 1.0 {
+                nominal.fov_deg
+            } else {
+                2.0 * (half_width / focal).atan().to_degrees()
+            },
+            cx: nominal.cx + self.principal_offset_px[0],
+            cy: nominal.cy + self.principal_offset_px[1],
+            k1,
+            k2,
+            p1,
+            p2,
+            k3,
+            ..nominal.clone()
+        }
+    }
+
+    /// The camera as built, with the turntable at `to_sample`.
+    pub fn pose(&self, nominal: &CameraSpec, to_sample: ToSample) -> CameraPose {
+        CameraPose::mounted(
+            &self.spec(nominal),
+            self.rotation_deg,
+            self.position_mm,
+            to_sample,
+        )
     }
 }
 
@@ -164,13 +203,13 @@ impl AsBuilt {
                 let camera = CameraAsBuilt {
                     focal_scale: d(1, 0.99, 1.01),
                     principal_offset_px: [d(2, -8.0, 8.0), d(3, -8.0, 8.0)],
-                    lens: [
+                    lens: Some([
                         d(4, -0.12, -0.02),
                         d(5, -0.02, 0.05),
                         d(6, -5e-4, 5e-4),
                         d(7, -5e-4, 5e-4),
                         0.0,
-                    ],
+                    ]),
                     rotation_deg: [d(8, -0.5, 0.5), d(9, -0.5, 0.5), d(10, -0.5, 0.5)],
                     position_mm: [d(11, -3.0, 3.0), d(12, -3.0, 3.0), d(13, -3.0, 3.0)],
                     response,
@@ -218,6 +257,35 @@ impl AsBuilt {
     }
 }
 
+impl AsBuilt {
+    /// The ground truth of the rig as built, for `as_built.json`: each camera in OpenCV's
+    /// convention (world frame at turntable 0°) with its response, and each lamp.
+    pub fn truth(&self, rig: &RigSpec) -> Value {
+        let cameras: serde_json::Map<String, Value> = rig
+            .cameras
+            .iter()
+            .map(|c| {
+                let built = self.camera(&c.id);
+                let geometry = built.pose(c, ToSample::new(0.0)).opencv();
+                let response = if built.gamma {
+                    json!({"kind": "gamma", "gamma": built.response, "formula": "y = x^(1/gamma)"})
+                } else {
+                    json!({"kind": "gentle", "curvature": built.response, "formula": "y = x(1 - c + c x)"})
+                };
+                (
+                    c.id.clone(),
+                    json!({"geometry": geometry, "response": response, "bit_depth": c.bit_depth}),
+                )
+            })
+            .collect();
+        json!({
+            "spec": self.spec,
+            "cameras": cameras,
+            "lamps": self.lamps,
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -241,13 +309,24 @@ mod tests {
         assert_ne!(cams[0], cams[1]);
         for c in cams {
             assert!((0.99..=1.01).contains(&c.focal_scale));
-            assert!(c.lens[0] < 0.0 && c.gamma);
+            assert!(c.lens.is_some_and(|l| l[0] < 0.0) && c.gamma);
             assert!(c.response.iter().all(|g| (2.0..=2.4).contains(g)));
         }
         for l in a.lamps.values() {
             assert!((0.85..=1.15).contains(&l.intensity));
         }
         let n = AsBuilt::nominal(&rig);
-        assert_eq!(n.camera(&rig.cameras[0].id), CameraAsBuilt::nominal());
+        let first = &rig.cameras[0];
+        assert_eq!(n.camera(&first.id), CameraAsBuilt::nominal());
+        assert_eq!(&n.camera(&first.id).spec(first), first);
+        // The truth record matches the rendering pose: the nominal camera's centre lies at its
+        // rig-file distance, the drawn one within a few mm of it.
+        let truth = a.truth(&rig);
+        let centre = &truth["cameras"][&first.id]["geometry"]["centre_mm"];
+        let r: f64 = (0..3)
+            .map(|i| centre[i].as_f64().unwrap().powi(2))
+            .sum::<f64>()
+            .sqrt();
+        assert!((r - first.distance_mm).abs() < 6.0, "{r}");
     }
 }
