@@ -3,6 +3,7 @@
 
 #![deny(unsafe_code)]
 
+pub mod as_built;
 pub mod emulators;
 pub mod materials;
 pub mod render;

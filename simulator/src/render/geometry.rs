@@ -112,13 +112,43 @@ pub struct CameraPose {
 impl CameraPose {
     /// The camera of `spec` with the turntable at `to_sample`.
     pub fn new(spec: &CameraSpec, to_sample: ToSample) -> CameraPose {
-        let pos = spherical(spec.azimuth_deg, spec.elevation_deg, spec.distance_mm);
-        let forward = (-pos).normalize_or(-Vec3A::Z);
-        let right = forward
+        CameraPose::mounted(spec, [0.0; 3], [0.0; 3], to_sample)
+    }
+
+    /// The camera of `spec` moved by `position_mm` (world frame) and turned by `rotation_deg`
+    /// about its own right, up and forward axes, with the turntable at `to_sample`: a camera
+    /// as built, off its nominal mount.
+    pub fn mounted(
+        spec: &CameraSpec,
+        rotation_deg: [f64; 3],
+        position_mm: [f64; 3],
+        to_sample: ToSample,
+    ) -> CameraPose {
+        let nominal = spherical(spec.azimuth_deg, spec.elevation_deg, spec.distance_mm);
+        let mut forward = (-nominal).normalize_or(-Vec3A::Z);
+        let mut right = forward
             .cross(Vec3A::Z)
             .try_normalize()
             .unwrap_or_else(|| horizontal_tangent(spec.azimuth_deg));
-        let up = right.cross(forward);
+        let mut up = right.cross(forward);
+        let pos = nominal
+            + Vec3A::new(
+                position_mm[0] as f32,
+                position_mm[1] as f32,
+                position_mm[2] as f32,
+            );
+        for (axis, deg) in [
+            (right, rotation_deg[0]),
+            (up, rotation_deg[1]),
+            (forward, rotation_deg[2]),
+        ] {
+            if deg != 0.0 {
+                let a = (deg as f32).to_radians();
+                forward = rotate_about(forward, axis, a);
+                right = rotate_about(right, axis, a);
+                up = rotate_about(up, axis, a);
+            }
+        }
         let intrinsics = Intrinsics::of(spec);
         CameraPose {
             origin: to_sample.apply(pos),
@@ -170,6 +200,61 @@ impl CameraPose {
             (f64::from(self.principal_x) + f * xd) as f32,
             (f64::from(self.principal_y) + f * yd) as f32,
         ))
+    }
+}
+
+/// A camera's geometry in OpenCV's convention, in the world frame at turntable 0° (the rig
+/// frame processing calibrates: origin at the table centre on the sample top, z up, x along
+/// the table's 0°): the ground truth geometric calibration is evaluated against.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct OpenCvCamera {
+    /// Focal length along x, pixels.
+    pub fx: f64,
+    /// Focal length along y, pixels.
+    pub fy: f64,
+    /// Principal point x, pixels, pixel centres at integers.
+    pub cx: f64,
+    /// Principal point y, pixels, pixel centres at integers.
+    pub cy: f64,
+    /// k1, k2, p1, p2, k3.
+    pub distortion: [f64; 5],
+    /// World → camera rotation (rows: image x, image y down, optical axis).
+    pub rotation: [[f64; 3]; 3],
+    /// World → camera translation, mm.
+    pub translation: [f64; 3],
+    /// Camera centre in the world, mm.
+    pub centre_mm: [f64; 3],
+}
+
+impl CameraPose {
+    /// This camera (built at turntable 0°) in OpenCV's convention.
+    pub fn opencv(&self) -> OpenCvCamera {
+        let rows =
+            [self.right, -self.up, self.forward].map(|v| [v.x as f64, v.y as f64, v.z as f64]);
+        let c = [
+            self.origin.x as f64,
+            self.origin.y as f64,
+            self.origin.z as f64,
+        ];
+        let t = rows.map(|r| -(r[0] * c[0] + r[1] * c[1] + r[2] * c[2]));
+        let f = f64::from(self.focal_px);
+        OpenCvCamera {
+            fx: f,
+            fy: f,
+            // The renderer samples pixel (x, y) at (x + 0.5, y + 0.5).
+            cx: f64::from(self.principal_x) - 0.5,
+            cy: f64::from(self.principal_y) - 0.5,
+            distortion: [
+                self.lens.k1,
+                self.lens.k2,
+                self.lens.p1,
+                self.lens.p2,
+                self.lens.k3,
+            ],
+            rotation: rows,
+            translation: t,
+            centre_mm: c,
+        }
     }
 }
 

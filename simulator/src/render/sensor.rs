@@ -37,6 +37,69 @@ pub fn black_level_dn(bit_depth: u8) -> f64 {
     (BLACK_FRACTION * max_dn(bit_depth)).round()
 }
 
+/// The sensor's response per channel: the fraction of full scale y a fraction of the full
+/// well x gives, before black level and read noise. Monotone with y(0) = 0 and y(1) = 1.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Response {
+    /// y = x(1 − c + c·x) with curvature c per channel: close to linear, as a scientific
+    /// camera (c = [`RESPONSE_CURVATURE`] on every channel by default).
+    Gentle([f32; 3]),
+    /// y = x^(1/γ) per channel: the strongly non-linear response of an 8-bit consumer camera
+    /// (the seed's rig), which HDR assembly must invert.
+    Gamma([f32; 3]),
+}
+
+impl Default for Response {
+    fn default() -> Self {
+        Response::Gentle([RESPONSE_CURVATURE as f32; 3])
+    }
+}
+
+impl Response {
+    /// y for fraction of full well `x` in [0, 1] on channel `c`.
+    #[inline]
+    pub fn apply(&self, c: usize, x: f32) -> f32 {
+        match self {
+            Response::Gentle(k) => x * (1.0 - k[c] + k[c] * x),
+            Response::Gamma(g) => x.max(0.0).powf(1.0 / g[c]),
+        }
+    }
+
+    /// x for fraction of full scale `y` in [0, 1] on channel `c` (the inverse of [`apply`]).
+    ///
+    /// [`apply`]: Response::apply
+    pub fn invert(&self, c: usize, y: f64) -> f64 {
+        let y = y.clamp(0.0, 1.0);
+        match self {
+            Response::Gentle(k) => {
+                let k = f64::from(k[c]);
+                if k.abs() < 1e-12 {
+                    y
+                } else {
+                    (-(1.0 - k) + ((1.0 - k).powi(2) + 4.0 * k * y).sqrt()) / (2.0 * k)
+                }
+            }
+            Response::Gamma(g) => y.powf(f64::from(g[c])),
+        }
+    }
+
+    /// A one-line description for frame notes.
+    pub fn describe(&self) -> String {
+        match self {
+            Response::Gentle(k) => format!(
+                "y = x(1 - c + cx) of full scale, c = [{}, {}, {}]",
+                k[0], k[1], k[2]
+            ),
+            Response::Gamma(g) => {
+                format!(
+                    "y = x^(1/g) of full scale, g = [{}, {}, {}]",
+                    g[0], g[1], g[2]
+                )
+            }
+        }
+    }
+}
+
 /// Conversion from scene radiance to digital numbers for one exposure.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sensor {
@@ -48,6 +111,8 @@ pub struct Sensor {
     read_sigma_dn: f32,
     /// The noise seed, pre-mixed once per frame.
     key: u64,
+    /// Response per channel.
+    response: Response,
 }
 
 impl Sensor {
@@ -76,7 +141,13 @@ impl Sensor {
             fraction_per_electron: finite(gain / FULL_WELL_E),
             read_sigma_dn: (READ_NOISE_DN_12BIT * gain * max / 4095.0) as f32,
             key: hash3(seed, 0x5e45_0e00, 0, 0),
+            response: Response::default(),
         }
+    }
+
+    /// The same sensor with `response` instead of the default gentle curve.
+    pub fn with_response(self, response: Response) -> Sensor {
+        Sensor { response, ..self }
     }
 
     /// Black level in DN.
@@ -99,6 +170,7 @@ impl Sensor {
         for (c, (o, &r)) in out.iter_mut().zip(radiance.iter()).enumerate() {
             let shift = GAUSS_BITS * c as u32;
             *o = self.digitise_with(
+                c,
                 r,
                 gaussian(shot_bits >> shift) as f32,
                 gaussian(read_bits >> shift) as f32,
@@ -115,15 +187,19 @@ impl Sensor {
         self.digitise_rgb(rgb, pixel)[(channel % 3) as usize]
     }
 
-    /// One channel from its mean radiance and two standard normal deviates.
+    /// Channel `c` from its mean radiance and two standard normal deviates.
     #[inline]
-    fn digitise_with(&self, radiance: f32, shot: f32, read: f32) -> u16 {
-        const C: f32 = RESPONSE_CURVATURE as f32;
+    fn digitise_with(&self, c: usize, radiance: f32, shot: f32, read: f32) -> u16 {
         // `electrons` is never NaN (its `max` maps NaN to 0); ∞ becomes the cap.
         let e = self.electrons(radiance).min(MAX_MEAN_ELECTRONS);
         let e = (e + shot * e.sqrt()).clamp(0.0, FULL_WELL_E as f32);
+        // Gain can take x past 1; the response then extrapolates and the DN clips below.
         let x = e * self.fraction_per_electron;
-        let y = x * (1.0 - C + C * x);
+        let y = if x <= 1.0 {
+            self.response.apply(c, x)
+        } else {
+            1.0 + (x - 1.0)
+        };
         let dn = y * self.max_dn + self.black + read * self.read_sigma_dn;
         // Round half up without a libm call: the clamped value is non-negative.
         (dn.clamp(0.0, self.max_dn) + 0.5) as u16
@@ -185,6 +261,50 @@ mod tests {
         let var = v.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / v.len() as f64;
         assert!((mean - 82.0).abs() < 0.2, "mean {mean}");
         assert!((var.sqrt() - 3.0).abs() < 0.3, "read noise {}", var.sqrt());
+    }
+
+    #[test]
+    fn responses_invert_and_are_monotone_per_channel() {
+        for r in [
+            Response::default(),
+            Response::Gentle([0.0, 0.05, 0.1]),
+            Response::Gamma([2.2, 2.0, 2.4]),
+        ] {
+            for c in 0..3 {
+                let mut last = -1.0f32;
+                for k in 0..=1000 {
+                    let x = k as f32 / 1000.0;
+                    let y = r.apply(c, x);
+                    assert!(y > last || (k == 0 && y == 0.0), "{r:?} channel {c} at {x}");
+                    last = y;
+                    let back = r.invert(c, f64::from(y));
+                    assert!(
+                        (back - f64::from(x)).abs() < 1e-4,
+                        "{r:?} {c}: {x} -> {back}"
+                    );
+                }
+                assert!((r.apply(c, 1.0) - 1.0).abs() < 1e-6);
+            }
+        }
+    }
+
+    #[test]
+    fn a_gamma_sensor_reads_mid_grey_far_above_a_linear_one() {
+        let linear = Sensor::new(8, 0.02, 1.0, 5);
+        let gamma = linear.with_response(Response::Gamma([2.2; 3]));
+        let radiance = 0.18 * std::f32::consts::FRAC_1_PI;
+        let mean = |s: &Sensor| {
+            (0..2000)
+                .map(|p| f64::from(s.digitise(radiance, p, 1)))
+                .sum::<f64>()
+                / 2000.0
+        };
+        assert!(
+            mean(&gamma) > 1.8 * mean(&linear),
+            "{} vs {}",
+            mean(&gamma),
+            mean(&linear)
+        );
     }
 
     #[test]

@@ -1,0 +1,261 @@
+//! Geometric calibration of the rig's cameras from one checkerboard run: every camera is
+//! calibrated (Zhang + Levenberg–Marquardt) from all the placements it saw; the placements
+//! with the board lying flat on the turntable at several table angles give that camera's
+//! turntable axis, and the flat placement at table 0° gives the rig frame (seed 004 §3.2).
+
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+use crate::calibrate_camera::{
+    BoardView, CalibrationOptions, CameraCalibration, IntrinsicsStd, calibrate_camera,
+};
+use crate::camera_model::{CameraModel, Pose};
+use crate::error::ProcessingError;
+use crate::rig_frame::{TurntableAxis, rig_to_camera, turntable_axis};
+
+/// How the board was placed for one capture.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Placement {
+    /// The board lay flat on the turntable (only turned by the table).
+    pub flat: bool,
+    /// Turntable angle, degrees.
+    pub table_deg: f64,
+}
+
+/// One camera's detected boards: (placement index, corners) pairs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CameraViews {
+    /// Camera id.
+    pub camera: String,
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Views with the placement each came from.
+    pub views: Vec<(usize, BoardView)>,
+}
+
+/// One camera's geometry in the rig frame.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CameraGeometry {
+    /// Camera id.
+    pub camera: String,
+    /// Intrinsics and distortion.
+    pub model: CameraModel,
+    /// Rig → camera transform.
+    pub rig_to_camera: Pose,
+    /// The camera's centre in the rig frame, mm.
+    pub centre_mm: [f64; 3],
+    /// Reprojection RMS over all its views, pixels.
+    pub rms_px: f64,
+    /// Reprojection RMS per view, pixels, with the placement index.
+    pub view_rms_px: Vec<(usize, f64)>,
+    /// Standard deviations of the intrinsics.
+    pub std: IntrinsicsStd,
+    /// The turntable axis as this camera saw it.
+    pub axis: TurntableAxis,
+}
+
+/// Calibrates every camera and places it in the rig frame.
+pub fn calibrate_geometry(
+    placements: &[Placement],
+    cameras: &[CameraViews],
+    options: CalibrationOptions,
+) -> Result<Vec<CameraGeometry>, ProcessingError> {
+    let reference = placements
+        .iter()
+        .position(|p| p.flat && p.table_deg.rem_euclid(360.0).abs() < 1e-6)
+        .ok_or_else(|| ProcessingError::IllPosed {
+            what: "rig frame",
+            why: "no placement has the board flat at turntable 0°; it defines the reference plane and the X axis".into(),
+        })?;
+    cameras
+        .iter()
+        .map(|cam| calibrate_one(cam, placements, reference, options))
+        .collect()
+}
+
+fn calibrate_one(
+    cam: &CameraViews,
+    placements: &[Placement],
+    reference: usize,
+    options: CalibrationOptions,
+) -> Result<CameraGeometry, ProcessingError> {
+    let named = |e: ProcessingError| ProcessingError::IllPosed {
+        what: "camera calibration",
+        why: format!("camera `{}`: {e}", cam.camera),
+    };
+    let views: Vec<BoardView> = cam.views.iter().map(|(_, v)| v.clone()).collect();
+    let CameraCalibration {
+        model,
+        poses,
+        rms_px,
+        view_rms_px,
+        std,
+        ..
+    } = calibrate_camera(&views, cam.width, cam.height, options).map_err(named)?;
+    let flat: Vec<Pose> = cam
+        .views
+        .iter()
+        .zip(&poses)
+        .filter(|((p, _), _)| placements.get(*p).is_some_and(|p| p.flat))
+        .map(|(_, pose)| *pose)
+        .collect();
+    let axis = turntable_axis(&flat).map_err(named)?;
+    let reference_pose = cam
+        .views
+        .iter()
+        .zip(&poses)
+        .find(|((p, _), _)| *p == reference)
+        .map(|(_, pose)| *pose)
+        .ok_or_else(|| {
+            named(ProcessingError::IllPosed {
+                what: "rig frame",
+                why: "the camera did not see the reference placement (flat at turntable 0°)".into(),
+            })
+        })?;
+    let rig = rig_to_camera(&axis, &reference_pose).map_err(named)?;
+    let centre: Vector3<f64> = rig.centre();
+    Ok(CameraGeometry {
+        camera: cam.camera.clone(),
+        model,
+        rig_to_camera: rig,
+        centre_mm: centre.into(),
+        rms_px,
+        view_rms_px: cam.views.iter().map(|(p, _)| *p).zip(view_rms_px).collect(),
+        std,
+        axis,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{Matrix3, Rotation3};
+
+    use super::*;
+    use crate::camera_model::{Distortion, Intrinsics};
+
+    /// A camera `distance` mm from the rig origin at `elevation` and `azimuth` degrees,
+    /// looking at the origin: its rig → camera pose.
+    fn look_at(distance: f64, elevation: f64, azimuth: f64) -> Pose {
+        let (e, a) = (elevation.to_radians(), azimuth.to_radians());
+        let c = Vector3::new(e.cos() * a.cos(), e.cos() * a.sin(), e.sin()) * distance;
+        let z = -c.normalize();
+        let x = z.cross(&Vector3::z()).normalize();
+        let y = z.cross(&x);
+        let r = Rotation3::from_matrix_unchecked(Matrix3::from_rows(&[
+            x.transpose(),
+            y.transpose(),
+            z.transpose(),
+        ]));
+        Pose::from_parts(&r, -(r * c))
+    }
+
+    fn compose(a: &Pose, b: &Pose) -> Pose {
+        // a ∘ b: first b, then a.
+        let r = a.rotation_matrix() * b.rotation_matrix();
+        Pose::from_parts(
+            &r,
+            a.rotation_matrix() * Vector3::from(b.translation) + Vector3::from(a.translation),
+        )
+    }
+
+    #[test]
+    fn places_two_cameras_in_the_rig_frame() {
+        let board: Vec<(f64, f64)> = (0..99)
+            .map(|i| ((i % 11) as f64 * 15.0, (i / 11) as f64 * 15.0))
+            .collect();
+        let centre = Vector3::new(75.0, 60.0, 0.0);
+        let mut placements = Vec::new();
+        let mut board_to_rig = Vec::new();
+        for k in 0..8 {
+            let r = Rotation3::from_axis_angle(&Vector3::z_axis(), (45.0 * k as f64).to_radians());
+            placements.push(Placement {
+                flat: true,
+                table_deg: 45.0 * k as f64,
+            });
+            board_to_rig.push(Pose::from_parts(&r, -(r * centre)));
+        }
+        for (tx, ty, spin) in [
+            (30.0, 0.0, 10.0),
+            (-30.0, 10.0, 80.0),
+            (0.0, 35.0, 170.0),
+            (10.0, -35.0, 260.0),
+            (25.0, 25.0, 300.0),
+        ] {
+            let r = Rotation3::from_euler_angles(
+                f64::to_radians(tx),
+                f64::to_radians(ty),
+                f64::to_radians(spin),
+            );
+            placements.push(Placement {
+                flat: false,
+                table_deg: 0.0,
+            });
+            board_to_rig.push(Pose::from_parts(
+                &r,
+                Vector3::new(0.0, 0.0, 40.0) - r * centre,
+            ));
+        }
+        let model = CameraModel {
+            intrinsics: Intrinsics {
+                fx: 1400.0,
+                fy: 1400.0,
+                cx: 512.0,
+                cy: 384.0,
+            },
+            distortion: Distortion {
+                k1: -0.08,
+                ..Distortion::default()
+            },
+        };
+        let truth = [
+            ("cam1", look_at(600.0, 30.0, 0.0)),
+            ("cam2", look_at(620.0, 55.0, 20.0)),
+        ];
+        let cameras: Vec<CameraViews> = truth
+            .iter()
+            .map(|(id, rig)| CameraViews {
+                camera: id.to_string(),
+                width: 1024,
+                height: 768,
+                views: board_to_rig
+                    .iter()
+                    .enumerate()
+                    .map(|(p, b2r)| {
+                        let pose = compose(rig, b2r);
+                        let image = board
+                            .iter()
+                            .map(|&(x, y)| {
+                                let q = model.project(&pose, &Vector3::new(x, y, 0.0)).unwrap();
+                                (q.x, q.y)
+                            })
+                            .collect();
+                        (
+                            p,
+                            BoardView {
+                                board: board.clone(),
+                                image,
+                            },
+                        )
+                    })
+                    .collect(),
+            })
+            .collect();
+        let out = calibrate_geometry(&placements, &cameras, CalibrationOptions::default()).unwrap();
+        for (g, (_, rig)) in out.iter().zip(&truth) {
+            let err = (Vector3::from(g.centre_mm) - rig.centre()).norm();
+            assert!(err < 0.01, "{}: centre off by {err} mm", g.camera);
+            assert!(g.rms_px < 1e-3);
+        }
+        // Without the reference placement the rig frame is undefined.
+        let no_ref: Vec<Placement> = placements
+            .iter()
+            .map(|p| Placement {
+                table_deg: p.table_deg + 1.0,
+                ..*p
+            })
+            .collect();
+        assert!(calibrate_geometry(&no_ref, &cameras, CalibrationOptions::default()).is_err());
+    }
+}

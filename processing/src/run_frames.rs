@@ -1,0 +1,137 @@
+//! Raw frames of a run as processing needs them: the (step, camera) pairs that hold a bracket,
+//! listed from the index without pixels, and one bracket at a time decoded from its PNGs, so
+//! memory stays bounded by one bracket however large the run.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use stagehand_dataset::png16::decode_png16;
+use stagehand_dataset::{FrameKind, FrameMeta, FrameQuery, RunReader, StoredFrame};
+
+use crate::error::ProcessingError;
+
+/// One capture of one camera: the facts shared by its exposures.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BracketKey {
+    /// Plan step.
+    pub step: usize,
+    /// Camera id.
+    pub camera: String,
+    /// The first frame's metadata (fixture, lamps, axes, size, bit depth, notes).
+    pub meta: FrameMeta,
+    /// The bracket's frames, shortest exposure first.
+    pub frames: Vec<StoredFrame>,
+}
+
+/// One decoded exposure.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DecodedExposure {
+    /// Exposure time, seconds.
+    pub exposure_s: f64,
+    /// Interleaved RGB sensor DNs.
+    pub dn: Vec<u16>,
+    /// The frame's path in the run.
+    pub path: String,
+}
+
+fn dataset_err(run: &Path) -> impl Fn(stagehand_dataset::StorageError) -> ProcessingError + '_ {
+    move |e| ProcessingError::Dataset {
+        run: run.display().to_string(),
+        message: e.to_string(),
+    }
+}
+
+/// Opens the run at `run_dir`.
+pub fn open_run(run_dir: &Path) -> Result<RunReader, ProcessingError> {
+    RunReader::open(run_dir).map_err(dataset_err(run_dir))
+}
+
+/// Every (step, camera) capture of raw frames in the run whose first frame passes `keep`.
+pub fn bracket_keys(
+    reader: &RunReader,
+    keep: impl Fn(&FrameMeta) -> bool,
+) -> Result<Vec<BracketKey>, ProcessingError> {
+    let page = reader
+        .frames(&FrameQuery {
+            kind: Some(FrameKind::Raw),
+            ..FrameQuery::default()
+        })
+        .map_err(dataset_err(reader.dir()))?;
+    let mut groups: BTreeMap<(usize, String), Vec<StoredFrame>> = BTreeMap::new();
+    for f in page.frames {
+        groups
+            .entry((f.meta.step, f.meta.camera.clone()))
+            .or_default()
+            .push(f);
+    }
+    Ok(groups
+        .into_iter()
+        .filter_map(|((step, camera), mut frames)| {
+            frames.sort_by(|a, b| a.meta.exposure_s.total_cmp(&b.meta.exposure_s));
+            let meta = frames.first()?.meta.clone();
+            keep(&meta).then_some(BracketKey {
+                step,
+                camera,
+                meta,
+                frames,
+            })
+        })
+        .collect())
+}
+
+/// Decodes the frames of `key`, checking each file's size against the capture's.
+pub fn decode_bracket(
+    reader: &RunReader,
+    key: &BracketKey,
+) -> Result<Vec<DecodedExposure>, ProcessingError> {
+    let run = reader.dir();
+    key.frames
+        .iter()
+        .map(|f| {
+            let path = run.join(&f.path);
+            let bytes = std::fs::read(&path).map_err(|e| ProcessingError::Dataset {
+                run: run.display().to_string(),
+                message: format!(
+                    "frame {} (step {}, camera {}) cannot be read: {e}; run `stagehand verify` on the run",
+                    f.path, f.meta.step, f.meta.camera
+                ),
+            })?;
+            let png = decode_png16(&f.path, &bytes).map_err(dataset_err(run))?;
+            if (png.width, png.height) != (key.meta.width, key.meta.height) {
+                return Err(ProcessingError::Dataset {
+                    run: run.display().to_string(),
+                    message: format!(
+                        "frame {} is {}×{} but its capture is {}×{}",
+                        f.path, png.width, png.height, key.meta.width, key.meta.height
+                    ),
+                });
+            }
+            Ok(DecodedExposure {
+                exposure_s: f.meta.exposure_s,
+                dn: png.pixels,
+                path: f.path.clone(),
+            })
+        })
+        .collect()
+}
+
+/// The black level of a capture in DN: from the frame notes of a simulated camera
+/// (`black_level_dn`), else 0 (a real camera's offset is then absorbed by the response).
+pub fn black_level_dn(meta: &FrameMeta) -> f64 {
+    meta.notes
+        .get("black_level_dn")
+        .and_then(serde_json::Value::as_f64)
+        .filter(|v| v.is_finite() && *v >= 0.0)
+        .unwrap_or(0.0)
+}
+
+/// The read noise of a capture in DN: from the frame notes (`sensor.read_noise_dn`), else
+/// 0.1 % of full scale.
+pub fn read_noise_dn(meta: &FrameMeta) -> f64 {
+    meta.notes
+        .get("sensor")
+        .and_then(|s| s.get("read_noise_dn"))
+        .and_then(serde_json::Value::as_f64)
+        .filter(|v| v.is_finite() && *v >= 0.0)
+        .unwrap_or(0.001 * ((1u64 << meta.bit_depth.min(16)) - 1) as f64)
+}
