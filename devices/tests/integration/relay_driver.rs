@@ -280,13 +280,11 @@ async fn a_board_that_is_not_numato_or_silent_or_missing_is_a_typed_error() {
     let (silent, state) = numato_fake();
     state.lock().unwrap().mute = true;
     let board = NumatoBoard::new("lamps", &silent.path, 19_200, 0.0);
-    let t0 = Instant::now();
     let e = board.gpio_set(1).await.unwrap_err();
     assert!(
         matches!(&e, DeviceError::Timeout { request, .. } if request == "ver"),
         "{e}"
     );
-    assert!(t0.elapsed() < Duration::from_secs(2), "{:?}", t0.elapsed());
 
     let board = NumatoBoard::new("lamps", "/dev/serial/by-id/no-such-board", 19_200, 3.0);
     let mut bank = RelaySerialBank::new(board, 8).unwrap();

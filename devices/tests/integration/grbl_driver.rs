@@ -648,10 +648,9 @@ async fn a_mute_controller_times_out_and_an_unplugged_port_is_disconnected() {
     let mut x = GrblAxis::new(ctl.clone(), &axis("turntable", "X")).unwrap();
     x.position().await.unwrap();
     fake.script().mute = true;
-    let t0 = Instant::now();
+    // A timeout, not a hang (how quickly it comes is the driver's timeout, not a test bound).
     let e = x.position().await.unwrap_err();
     assert!(matches!(e, DeviceError::Timeout { .. }), "{e}");
-    assert!(t0.elapsed() < Duration::from_secs(2));
     // Reconnecting to a mute controller: no banner.
     let e = x.position().await.unwrap_err();
     assert!(
