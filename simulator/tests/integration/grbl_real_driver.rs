@@ -5,7 +5,7 @@
 //! that disappears and comes back. Settings that cannot work for the rig are refused at
 //! connect with the `$N=` to send.
 
-mod grbl_peer;
+use crate::grbl_peer;
 
 use std::path::Path;
 use std::sync::Arc;
@@ -214,6 +214,7 @@ fn the_driver_runs_a_grbl_1_1h_with_single_axis_homing() {
 
 #[test]
 fn the_driver_runs_the_emulator_the_same_way() {
+    let _turn = grbl_peer::alongside();
     let rt = grbl_peer::runtime();
     rt.block_on(async {
         let dir = tempfile::tempdir().expect("temp dir");

@@ -9,7 +9,7 @@
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::{Mutex, MutexGuard};
+use std::sync::{Mutex, RwLock, RwLockReadGuard, RwLockWriteGuard};
 
 /// Settings of the test boards: homing, soft limits, no laser mode, 142.222 steps per unit,
 /// 30 units/s, 60 units/s², travel 400/400/100, seek 40 units/s, locate 10 units/s.
@@ -63,11 +63,29 @@ pub fn required() -> bool {
     std::env::var("STAGEHAND_REQUIRE_PEERS").is_ok_and(|v| v == "1")
 }
 
-/// Real-firmware tests in one test binary run one at a time: grbl-sim simulates the AVR in
-/// real time and must not starve (a starved simulator reports false homing alarms).
-pub fn exclusive() -> MutexGuard<'static, ()> {
-    static LOCK: Mutex<()> = Mutex::new(());
-    LOCK.lock().unwrap_or_else(|e| e.into_inner())
+/// Turns of a test binary that holds real-firmware tests: those run one at a time and
+/// alone, every other test of the binary beside any but them.
+static TURNS: RwLock<()> = RwLock::new(());
+
+/// A test's turn ([`exclusive`] or [`alongside`]), held until dropped.
+pub enum Turn {
+    /// A real-firmware test's: nothing else runs.
+    Alone(RwLockWriteGuard<'static, ()>),
+    /// Any other test's: runs beside others, never beside a real-firmware test.
+    Shared(RwLockReadGuard<'static, ()>),
+}
+
+/// Real-firmware tests run one at a time and alone in their test binary: grbl-sim simulates
+/// the AVR in real time and must not starve (a starved simulator reports false homing
+/// alarms), so no other test loads the CPU meanwhile.
+pub fn exclusive() -> Turn {
+    Turn::Alone(TURNS.write().unwrap_or_else(|e| e.into_inner()))
+}
+
+/// Every other test of a binary with real-firmware tests takes this first: it may run beside
+/// other tests, but waits while a real-firmware test runs.
+pub fn alongside() -> Turn {
+    Turn::Shared(TURNS.read().unwrap_or_else(|e| e.into_inner()))
 }
 
 /// The workspace root: the nearest folder above the crate holding `Cargo.lock`.

@@ -25,6 +25,7 @@ fn world() -> Arc<World> {
 
 #[tokio::test(start_paused = true)]
 async fn a_move_takes_its_trapezoid_time_on_the_virtual_clock() {
+    let _turn = crate::grbl_peer::alongside();
     let w = world();
     let spec = w.rig().axis("turntable").unwrap().clone();
     let axis = AxisHandle::spawn(spec.clone(), SimAxis::new(spec.clone(), w.clone()));
@@ -43,6 +44,7 @@ async fn a_move_takes_its_trapezoid_time_on_the_virtual_clock() {
 
 #[tokio::test(start_paused = true)]
 async fn backlash_is_taken_up_by_the_positive_final_approach() {
+    let _turn = crate::grbl_peer::alongside();
     let w = world();
     let spec = w.rig().axis("light_arc").unwrap().clone();
     assert!(spec.backlash_deg > 0.0);
@@ -72,6 +74,7 @@ async fn backlash_is_taken_up_by_the_positive_final_approach() {
 
 #[tokio::test(start_paused = true)]
 async fn moving_while_a_camera_exposes_is_refused_and_recorded() {
+    let _turn = crate::grbl_peer::alongside();
     let w = world();
     let spec = w.rig().axis("turntable").unwrap().clone();
     let mut axis = SimAxis::new(spec, w.clone());
@@ -88,6 +91,7 @@ async fn moving_while_a_camera_exposes_is_refused_and_recorded() {
 
 #[test]
 fn lamp_warm_up_reaches_exactly_full_output() {
+    let _turn = crate::grbl_peer::alongside();
     assert_eq!(warmup_fraction(0.0, 0.8), 0.0);
     assert!(warmup_fraction(0.4, 0.8) > 0.5 && warmup_fraction(0.4, 0.8) < 1.0);
     assert_eq!(warmup_fraction(0.8, 0.8), 1.0);

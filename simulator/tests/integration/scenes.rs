@@ -44,6 +44,7 @@ fn write_png(path: &Path, width: u32, height: u32, channels: usize, bits: u8, va
 
 #[test]
 fn every_builtin_scene_builds_as_its_fixture() {
+    let _turn = crate::grbl_peer::alongside();
     assert_eq!(BUILTIN_SCENES.len(), FIXTURES.len());
     for name in FIXTURES {
         let s = Sample::build(name, 80.0, 0.4).unwrap_or_else(|e| panic!("{name}: {e}"));
@@ -121,6 +122,7 @@ const HEAD: &str = "[scene]\nname = \"t\"\n\n[sample]\nshape = \"bumps\"\n";
 
 #[test]
 fn schema_errors_name_file_line_and_column() {
+    let _turn = crate::grbl_peer::alongside();
     let m = error_at(&format!("{HEAD}colour = 3\n"), "colour");
     assert!(m.contains("unknown field `colour`"), "{m}");
     let m = error_at(
@@ -146,6 +148,7 @@ fn schema_errors_name_file_line_and_column() {
 
 #[test]
 fn out_of_range_values_name_file_line_and_column() {
+    let _turn = crate::grbl_peer::alongside();
     let mat = |body: &str| format!("{HEAD}[material]\nmodel = \"ggx\"\n{body}\n");
     let m = error_at(&mat("albedo = [0.5, 1.5, 0.2]"), "albedo");
     assert!(m.contains("albedo[1] must be in [0, 1], got 1.5"), "{m}");
@@ -184,6 +187,7 @@ fn out_of_range_values_name_file_line_and_column() {
 
 #[test]
 fn bad_referenced_files_name_the_scene_key() {
+    let _turn = crate::grbl_peer::alongside();
     let dir = TempDir::new().expect("tempdir");
     let m = error_at(
         &format!("{HEAD}[material]\nmodel = \"ward\"\nalbedo_map = \"missing.png\"\n"),
@@ -235,6 +239,7 @@ fn bad_referenced_files_name_the_scene_key() {
 
 #[test]
 fn missing_scene_file_is_a_clear_render_error() {
+    let _turn = crate::grbl_peer::alongside();
     let e = Sample::build("/nonexistent/scene.toml", 80.0, 0.4).expect_err("missing");
     assert!(matches!(e, RenderError::Scene(_)), "{e:?}");
     assert!(e.to_string().contains("/nonexistent/scene.toml"), "{e}");
@@ -247,6 +252,7 @@ fn missing_scene_file_is_a_clear_render_error() {
 
 #[test]
 fn sixteen_bit_height_image_round_trips_into_the_relief() {
+    let _turn = crate::grbl_peer::alongside();
     let dir = TempDir::new().expect("tempdir");
     // A ramp along the columns (+y): 0 at the left, full white at the right.
     let (w, h) = (65u32, 9u32);
@@ -277,6 +283,7 @@ fn sixteen_bit_height_image_round_trips_into_the_relief() {
 
 #[test]
 fn obj_pyramid_rasterises_to_its_heights() {
+    let _turn = crate::grbl_peer::alongside();
     let dir = TempDir::new().expect("tempdir");
     write(
         dir.path(),
@@ -306,6 +313,7 @@ fn obj_pyramid_rasterises_to_its_heights() {
 
 #[test]
 fn an_albedo_map_shows_up_in_the_rendered_frame() {
+    let _turn = crate::grbl_peer::alongside();
     let dir = TempDir::new().expect("tempdir");
     // 8-bit sRGB map: left half (−y) red, right half (+y) blue.
     let (w, h) = (8u32, 8u32);
@@ -362,6 +370,7 @@ fn an_albedo_map_shows_up_in_the_rendered_frame() {
 
 #[test]
 fn scene_render_settings_apply_on_top_of_the_rigs() {
+    let _turn = crate::grbl_peer::alongside();
     let dir = TempDir::new().expect("tempdir");
     let scene = write(
         dir.path(),

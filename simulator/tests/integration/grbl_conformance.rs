@@ -4,7 +4,7 @@
 //! timing (positions and feed rates while moving, holding or homing). Where they differ, the
 //! emulator is wrong.
 
-mod grbl_peer;
+use crate::grbl_peer;
 
 use std::path::Path;
 use std::sync::Arc;
@@ -534,6 +534,7 @@ fn the_emulator_answers_every_exchange_as_the_real_firmware_does() {
 
 #[test]
 fn masking_keeps_words_and_hides_numbers() {
+    let _turn = grbl_peer::alongside();
     assert_eq!(
         mask_numbers("<Run|MPos:-12.500,0.000,3.1|FS:1800,0>"),
         "<Run|MPos:#,#,#|FS:#,#>"
