@@ -27,11 +27,13 @@ fn assert_bad(o: &Output, needles: &[&str]) {
 
 #[test]
 fn unknown_scene_is_named() {
+    let _turn = crate::grbl_peer::alongside();
     assert_bad(&tradeoff(&["teapot"]), &["unknown scene `teapot`", "bumps"]);
 }
 
 #[test]
 fn bad_numbers_are_named() {
+    let _turn = crate::grbl_peer::alongside();
     assert_bad(&tradeoff(&["--width", "0"]), &["--width", "1 to 4096"]);
     assert_bad(&tradeoff(&["--height=-3"]), &["--height"]);
     assert_bad(&tradeoff(&["--width", "wide"]), &["--width"]);
@@ -47,6 +49,7 @@ fn bad_numbers_are_named() {
 
 #[test]
 fn unknown_subcommand_and_flag() {
+    let _turn = crate::grbl_peer::alongside();
     let o = Command::new(BIN).args(["sim", "melt"]).output().unwrap();
     assert_eq!(o.status.code(), Some(2));
     assert_bad(&tradeoff(&["--fast"]), &["--fast"]);

@@ -3,7 +3,7 @@
 //! checksums, plus the manifest's `sim` block and the run's `scene.toml`; an aborted and
 //! resumed run reproduces an uninterrupted one byte for byte, ground truth included.
 
-mod common;
+use crate::common;
 
 use std::sync::Arc;
 
@@ -25,6 +25,7 @@ fn quickstart() -> stagehand::session::Prepared {
 
 #[test]
 fn ground_truth_files_sit_beside_frames_and_are_indexed() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().unwrap();
     let out = run_prepared(
         quickstart(),
@@ -208,6 +209,7 @@ fn run_aborting(out: &std::path::Path, abort_at: Option<usize>) -> std::path::Pa
 
 #[test]
 fn an_aborted_and_resumed_run_reproduces_frames_and_ground_truth() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().unwrap();
     let reference = run_aborting(&tmp.path().join("reference"), None);
     let interrupted = run_aborting(&tmp.path().join("interrupted"), Some(3));

@@ -1,7 +1,7 @@
 //! Every sequence of the seed rig, scaled down, runs end to end on the simulated rig and
 //! writes a complete, consistent dataset.
 
-mod common;
+use crate::common;
 
 use common::*;
 
@@ -103,6 +103,7 @@ fn check_sequence(seq: &str, rig: &str, overrides: &[(&str, &str)]) -> std::path
 
 #[test]
 fn quickstart() {
+    let _turn = crate::grbl_peer::alongside();
     let dir = check_sequence("quickstart.rhai", "lightstage", &[]);
     let conn = db(&dir);
     // The laser sweep frames record the laser on, armed, with its tilt.
@@ -123,6 +124,7 @@ fn quickstart() {
 
 #[test]
 fn btf_scaled_down() {
+    let _turn = crate::grbl_peer::alongside();
     check_sequence(
         "btf.rhai",
         "lightstage",
@@ -132,6 +134,7 @@ fn btf_scaled_down() {
 
 #[test]
 fn mdf_laser_scaled_down() {
+    let _turn = crate::grbl_peer::alongside();
     check_sequence(
         "mdf_laser.rhai",
         "lightstage",
@@ -146,6 +149,7 @@ fn mdf_laser_scaled_down() {
 
 #[test]
 fn quasi_homogeneous_scaled_down() {
+    let _turn = crate::grbl_peer::alongside();
     check_sequence(
         "quasi_homogeneous.rhai",
         "lightstage",
@@ -162,6 +166,7 @@ fn quasi_homogeneous_scaled_down() {
 
 #[test]
 fn reflectometer() {
+    let _turn = crate::grbl_peer::alongside();
     let dir = check_sequence("reflectometer.rhai", "reflectometer", &[("positions", "4")]);
     let conn = db(&dir);
     assert!(
@@ -172,6 +177,7 @@ fn reflectometer() {
 
 #[test]
 fn calibration_checkerboard() {
+    let _turn = crate::grbl_peer::alongside();
     let dir = check_sequence(
         "calibration_checkerboard.rhai",
         "lightstage",
@@ -187,6 +193,7 @@ fn calibration_checkerboard() {
 
 #[test]
 fn calibration_colorchecker() {
+    let _turn = crate::grbl_peer::alongside();
     let dir = check_sequence(
         "calibration_colorchecker.rhai",
         "lightstage",

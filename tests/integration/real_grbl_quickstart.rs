@@ -1,14 +1,13 @@
 //! The quickstart on a hybrid rig (all but its closing `home()`, see below): the turntable, the light arc, the laser tilt and the
-//! laser on the real GRBL 1.1h firmware (`simulator/tests/grbl_peer`, a stock build on a pty,
+//! laser on the real GRBL 1.1h firmware (`simulator/tests/integration/grbl_peer`, a stock build on a pty,
 //! through the real driver), the lamps, trigger and cameras simulated. The simulated cameras
 //! render the World at the positions the real axes report, so every frame must match the same
 //! quickstart on the all-simulated rig, and the laser frames must show the laser the real
 //! board switched on.
 
-#[path = "../simulator/tests/grbl_peer/mod.rs"]
-mod grbl_peer;
+use crate::grbl_peer;
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::sync::Arc;

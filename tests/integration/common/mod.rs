@@ -282,6 +282,25 @@ pub async fn start_daemon(
     .await
 }
 
+/// The daemon tests' setup: a daemon on the light stage with 32×24 cameras and the
+/// repository's sequences, its rig file and data in a fresh temporary directory (kept alive
+/// by the second value).
+pub async fn small_daemon() -> (stagehand::daemon::RunningDaemon, tempfile::TempDir) {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let rig = small_rig_file(dir.path(), "lightstage", 32, 24);
+    let d = start_daemon(&dir.path().join("data"), Some(&rig))
+        .await
+        .expect("daemon starts");
+    (d, dir)
+}
+
+/// A daemon on the built-in (full-size) light stage, its data in a fresh temporary directory.
+pub async fn builtin_daemon() -> (stagehand::daemon::RunningDaemon, tempfile::TempDir) {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let d = start_daemon(dir.path(), None).await.expect("daemon starts");
+    (d, dir)
+}
+
 /// Runs blocking HTTP calls off the async workers (the daemon under test shares the runtime).
 pub async fn blocking<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> T {
     tokio::task::spawn_blocking(f).await.expect("no panic")

@@ -1,11 +1,15 @@
-//! A blocking JSON client for a daemon under test, over `stagehand::client` (call it inside
-//! `spawn_blocking` or a thread of its own: each call waits on the test's runtime).
+//! A blocking JSON client for a daemon under test (call it inside `spawn_blocking` or a thread
+//! of its own: each call waits on the test's runtime). Over the socket it uses
+//! `stagehand::client`, the typed client; [`Api::in_process`] sends the same requests through
+//! the daemon's axum router (`tower::ServiceExt::oneshot`) without a socket, for tests that do
+//! not stream.
 
 use reqwest::Method;
 use serde_json::Value;
 use stagehand::client::{Body, Client, EventStream, RawReply};
 use stagehand::daemon::RunningDaemon;
 use tokio::runtime::Handle;
+use tower::ServiceExt;
 
 /// Status, headers and JSON body (or the text as a JSON string) of an answer.
 pub struct Reply {
@@ -43,6 +47,8 @@ pub struct Api {
     pub token: String,
     client: Client,
     runtime: Handle,
+    /// The daemon's router, when requests skip the socket ([`Api::in_process`]).
+    router: Option<axum::Router>,
 }
 
 impl Api {
@@ -54,6 +60,17 @@ impl Api {
             token: token.to_string(),
             client,
             runtime: Handle::current(),
+            router: None,
+        }
+    }
+
+    /// A client of `d` with `token` whose requests go through the daemon's router in-process,
+    /// not over a socket (made inside the test's runtime). Event streams and byte-exact
+    /// targets still need the socket: use [`Api::new`] for those.
+    pub fn in_process(d: &RunningDaemon, token: &str) -> Self {
+        Self {
+            router: Some(stagehand::daemon::router(d.state.clone())),
+            ..Self::new(d, token)
         }
     }
 
@@ -79,7 +96,15 @@ impl Api {
             .expect("the daemon answers")
     }
 
-    fn call(&self, client: &Client, method: Method, path: &str, body: Body) -> Reply {
+    /// `method path` with the token (none when `anonymous`), over the socket or the router.
+    fn call(&self, anonymous: bool, method: Method, path: &str, body: Body) -> Reply {
+        let token = (!anonymous).then_some(self.token.as_str());
+        if let Some(router) = &self.router {
+            return self
+                .runtime
+                .block_on(oneshot(router.clone(), method, path, token, body));
+        }
+        let client = self.client.with_token(token);
         self.runtime
             .block_on(client.raw(method, path, body))
             .expect("the daemon answers")
@@ -92,7 +117,7 @@ impl Api {
         if has_dot_segment(path) {
             return self.exact_get(path);
         }
-        self.call(&self.client, Method::GET, path, Body::Empty)
+        self.call(false, Method::GET, path, Body::Empty)
     }
 
     /// `GET target` as written (no client-side resolution of `..` or `%2F`), on a
@@ -139,8 +164,7 @@ impl Api {
 
     /// `GET path` without any token.
     pub fn get_anonymous(&self, path: &str) -> Reply {
-        let anonymous = self.client.with_token(None);
-        self.call(&anonymous, Method::GET, path, Body::Empty)
+        self.call(true, Method::GET, path, Body::Empty)
     }
 
     /// `GET path`: status and body.
@@ -155,20 +179,20 @@ impl Api {
             content_type: "application/json".into(),
             text: body.to_string(),
         };
-        let r = self.call(&self.client, Method::POST, path, body);
+        let r = self.call(false, Method::POST, path, body);
         (r.status, r.body)
     }
 
     /// `POST path` with a JSON body (or none): status and body.
     pub fn post(&self, path: &str, body: Option<Value>) -> (u16, Value) {
         let body = body.map_or(Body::Empty, Body::Json);
-        let r = self.call(&self.client, Method::POST, path, body);
+        let r = self.call(false, Method::POST, path, body);
         (r.status, r.body)
     }
 
     /// `DELETE path`: status and body.
     pub fn delete(&self, path: &str) -> (u16, Value) {
-        let r = self.call(&self.client, Method::DELETE, path, Body::Empty);
+        let r = self.call(false, Method::DELETE, path, Body::Empty);
         (r.status, r.body)
     }
 
@@ -190,7 +214,7 @@ impl Api {
             content_type: "text/plain".into(),
             bytes: body.to_vec(),
         };
-        let r = self.call(&self.client, Method::PUT, path, body);
+        let r = self.call(false, Method::PUT, path, body);
         (r.status, r.body)
     }
 
@@ -204,6 +228,57 @@ impl Api {
             events,
             runtime: self.runtime.clone(),
         }
+    }
+}
+
+/// One request through `router` without a socket: as the socket would carry it (bearer
+/// token, content type, body), answered with its status, headers and body.
+async fn oneshot(
+    router: axum::Router,
+    method: Method,
+    path: &str,
+    token: Option<&str>,
+    body: Body,
+) -> Reply {
+    let mut req = axum::http::Request::builder()
+        .method(method.as_str())
+        .uri(path);
+    if let Some(token) = token {
+        req = req.header("authorization", format!("Bearer {token}"));
+    }
+    let (content_type, bytes) = match body {
+        Body::Empty => (None, Vec::new()),
+        Body::Raw(bytes) => (None, bytes),
+        Body::Json(v) => (
+            Some("application/json".to_string()),
+            v.to_string().into_bytes(),
+        ),
+        Body::Text { content_type, text } => (Some(content_type), text.into_bytes()),
+        Body::Bytes {
+            content_type,
+            bytes,
+        } => (Some(content_type), bytes),
+    };
+    if let Some(ct) = content_type {
+        req = req.header("content-type", ct);
+    }
+    let req = req.body(axum::body::Body::from(bytes)).expect("a request");
+    let resp = router.oneshot(req).await.expect("the router answers");
+    let status = resp.status().as_u16();
+    let headers = resp
+        .headers()
+        .iter()
+        .map(|(k, v)| (k.as_str().to_string(), v.to_str().unwrap_or("").to_string()))
+        .collect();
+    let raw = axum::body::to_bytes(resp.into_body(), usize::MAX)
+        .await
+        .expect("the body");
+    let body = serde_json::from_slice(&raw)
+        .unwrap_or_else(|_| Value::String(String::from_utf8_lossy(&raw).into_owned()));
+    Reply {
+        status,
+        headers,
+        body,
     }
 }
 

@@ -3,7 +3,8 @@
 //! resume, abort and resume of a stored run, one run at a time, the single capture, and
 //! quickstart from start to end.
 
-mod common;
+use crate::common;
+use common::small_daemon as daemon;
 
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -25,17 +26,6 @@ lamps_off();
 "#;
 const TOUR_STEPS: u64 = 7;
 const TOUR_FRAMES: u64 = 5;
-
-/// A daemon on the light stage with 32×24 cameras, with the repository's sequences as
-/// built-in scripts.
-async fn daemon() -> (RunningDaemon, tempfile::TempDir) {
-    let dir = tempfile::tempdir().expect("temp dir");
-    let rig = common::small_rig_file(dir.path(), "lightstage", 32, 24);
-    let d = common::start_daemon(&dir.path().join("data"), Some(&rig))
-        .await
-        .expect("daemon starts");
-    (d, dir)
-}
 
 /// A blocking client for one daemon (use it inside `spawn_blocking`) with this file's helpers.
 #[derive(Clone)]
@@ -128,6 +118,7 @@ fn index_counts(data: &Path, run_id: &str) -> (u64, u64) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn scripts_upload_validate_and_refuse_bad_names() {
+    let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
     let api = Api::new(&d, &d.state.tokens.operator);
     let reader = Api::new(&d, &d.state.tokens.read_only);
@@ -273,6 +264,7 @@ async fn scripts_upload_validate_and_refuse_bad_names() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn runs_with_prompts_pause_abort_resume_and_capture() {
+    let _turn = crate::grbl_peer::alongside();
     let (d, dir) = daemon().await;
     let data = dir.path().join("data");
     let api = Api::new(&d, &d.state.tokens.operator);
@@ -478,6 +470,7 @@ async fn runs_with_prompts_pause_abort_resume_and_capture() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn quickstart_runs_to_the_end_and_broken_runs_are_listed() {
+    let _turn = crate::grbl_peer::alongside();
     let (d, dir) = daemon().await;
     let data = dir.path().join("data");
     // A run directory without a manifest is listed as unreadable, not a server error.
@@ -532,6 +525,7 @@ async fn quickstart_runs_to_the_end_and_broken_runs_are_listed() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn scripts_delete_uploaded_only() {
+    let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
     let api = Api::new(&d, &d.state.tokens.operator);
     let reader = Api::new(&d, &d.state.tokens.read_only);

@@ -2,7 +2,7 @@
 //! finishes the run: every frame is present exactly once and byte-identical to an
 //! uninterrupted run with the same seed.
 
-mod common;
+use crate::common;
 
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -60,6 +60,7 @@ fn next(state: &mut u64) -> f64 {
 
 #[test]
 fn kill_at_random_points_then_resume_loses_and_duplicates_nothing() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().unwrap();
     let rig = small_rig_file(tmp.path(), "lightstage", 160, 120);
 

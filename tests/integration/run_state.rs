@@ -3,7 +3,7 @@
 //! single capture in place takes the rig as it is and leaves it so. Simulated rig, virtual
 //! clock.
 
-mod common;
+use crate::common;
 
 use std::sync::Arc;
 
@@ -114,6 +114,7 @@ fn laser_frames(o: &Outcome) -> (i64, i64) {
 
 #[test]
 fn an_interlock_opened_mid_sweep_pauses_the_run_and_the_step_is_retaken() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().expect("tmp");
     let (undisturbed, _) = quickstart_with(&tmp.path().join("a"), |_, _, _| {});
     undisturbed.result.as_ref().expect("undisturbed run");
@@ -162,6 +163,7 @@ fn an_interlock_opened_mid_sweep_pauses_the_run_and_the_step_is_retaken() {
 
 #[test]
 fn a_stalled_simulated_camera_is_retaken_and_blames_no_cable() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().expect("tmp");
     let stalled = Arc::new(std::sync::atomic::AtomicBool::new(false));
     let flag = stalled.clone();
@@ -191,6 +193,7 @@ fn a_stalled_simulated_camera_is_retaken_and_blames_no_cable() {
 
 #[test]
 fn resuming_with_the_door_still_open_pauses_again() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().expect("tmp");
     let opened = Arc::new(std::sync::atomic::AtomicBool::new(false));
     let pauses = Arc::new(std::sync::atomic::AtomicUsize::new(0));
@@ -215,6 +218,7 @@ fn resuming_with_the_door_still_open_pauses_again() {
 
 #[test]
 fn a_capture_in_place_neither_homes_nor_changes_the_rig() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().expect("tmp");
     let rig_source = small_rig("lightstage", 32, 24);
     let capture = stagehand::script::ScriptSource {
@@ -284,6 +288,7 @@ fn a_capture_in_place_neither_homes_nor_changes_the_rig() {
 
 #[test]
 fn a_capture_in_place_refuses_axes_that_are_not_homed() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().expect("tmp");
     let capture = stagehand::script::ScriptSource {
         name: "capture.rhai".into(),

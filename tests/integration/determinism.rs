@@ -1,6 +1,6 @@
 //! Same seed → byte-identical frames; another seed → other noise.
 
-mod common;
+use crate::common;
 
 use common::*;
 
@@ -22,6 +22,7 @@ fn frames_of(seed: u64) -> Vec<String> {
 
 #[test]
 fn same_seed_gives_byte_identical_frames() {
+    let _turn = crate::grbl_peer::alongside();
     let a = frames_of(11);
     let b = frames_of(11);
     assert!(!a.is_empty());
@@ -30,6 +31,7 @@ fn same_seed_gives_byte_identical_frames() {
 
 #[test]
 fn different_seed_gives_different_noise() {
+    let _turn = crate::grbl_peer::alongside();
     let a = frames_of(11);
     let b = frames_of(12);
     assert_eq!(a.len(), b.len());

@@ -4,7 +4,7 @@
 //! verifies clean and every frame is byte-identical to the original (the simulated rig is
 //! deterministic and trigger ids depend only on step and exposure).
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -42,6 +42,7 @@ fn frame_where(dir: &Path, condition: &str) -> (usize, String) {
 
 #[test]
 fn damaged_steps_are_found_by_verify_and_repaired_by_a_retake() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().expect("temp dir");
     let out = run_sequence(
         "quickstart.rhai",

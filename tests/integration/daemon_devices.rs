@@ -1,7 +1,8 @@
 //! Manual device control over the daemon's API, on the simulated light stage in real time:
 //! axes, lamps, the laser and its interlock, the e-stop, and hold-to-jog over a WebSocket.
 
-mod common;
+use crate::common;
+use common::builtin_daemon as daemon;
 
 use std::time::Duration;
 
@@ -9,15 +10,6 @@ use futures_util::{SinkExt, StreamExt};
 use serde_json::{Value, json};
 use stagehand::daemon::RunningDaemon;
 use tokio_tungstenite::tungstenite::Message;
-
-/// A daemon on the built-in light stage, on a free port.
-async fn daemon() -> (RunningDaemon, tempfile::TempDir) {
-    let dir = tempfile::tempdir().expect("temp dir");
-    let d = common::start_daemon(dir.path(), None)
-        .await
-        .expect("daemon starts");
-    (d, dir)
-}
 
 /// A blocking client for one daemon (call it inside `spawn_blocking`) with this file's
 /// helpers.
@@ -76,6 +68,7 @@ fn pos(v: &Value) -> f64 {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn axes_move_jog_home_and_stop_with_positions_in_the_status() {
+    let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
     let api = Api::operator(&d);
     let ro = Api::read_only(&d);
@@ -181,6 +174,7 @@ async fn axes_move_jog_home_and_stop_with_positions_in_the_status() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_laser_needs_arming_and_a_closed_interlock() {
+    let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
     let api = Api::operator(&d);
     common::blocking(move || {
@@ -232,6 +226,7 @@ async fn the_laser_needs_arming_and_a_closed_interlock() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_estop_stops_a_long_move_switches_everything_off_and_latches() {
+    let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
     let api = Api::operator(&d);
     let elapsed_ms = common::blocking(move || {
@@ -367,6 +362,7 @@ where
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn hold_to_jog_stops_when_the_client_goes_quiet() {
+    let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
     let api = Api::operator(&d);
     let http = api.clone();

@@ -2,11 +2,11 @@
 //! listings, resuming with an ETA, messages worded for API clients, SSE replay and the final
 //! event at shutdown, on the simulated light stage with tiny cameras in real time.
 
-mod common;
+use crate::common;
+use common::small_daemon as daemon;
 
 use common::api::Api;
 use serde_json::{Value, json};
-use stagehand::daemon::RunningDaemon;
 
 /// A prompt first (the run waits there), then a capture on one camera.
 const PROMPTED: &str = r#"// prompted.rhai
@@ -16,16 +16,6 @@ lamps_on(["lamp1"]);
 capture(0.01, #{cameras: ["cam1"]});
 lamps_off();
 "#;
-
-/// A daemon on the light stage with 32×24 cameras and the repository's sequences.
-async fn daemon() -> (RunningDaemon, tempfile::TempDir) {
-    let dir = tempfile::tempdir().expect("temp dir");
-    let rig = common::small_rig_file(dir.path(), "lightstage", 32, 24);
-    let d = common::start_daemon(&dir.path().join("data"), Some(&rig))
-        .await
-        .expect("daemon starts");
-    (d, dir)
-}
 
 /// Uploads [`PROMPTED`] and starts it; the run id.
 fn start_prompted(api: &Api) -> String {
@@ -75,8 +65,10 @@ fn post_routes_with_a_body(api: &Api) -> Vec<String> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn json_arrays_are_refused_where_objects_are_documented() {
+    let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
-    let api = Api::operator(&d);
+    // No event stream here: the requests go through the router, without a socket.
+    let api = Api::in_process(&d, &d.state.tokens.operator);
     common::blocking(move || {
         let routes = post_routes_with_a_body(&api);
         for must in [
@@ -116,6 +108,7 @@ async fn json_arrays_are_refused_where_objects_are_documented() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_aborted_run_says_how_to_resume_over_the_api_and_resumes_with_an_eta() {
+    let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
     let api = Api::operator(&d);
     common::blocking(move || {
@@ -170,8 +163,10 @@ async fn an_aborted_run_says_how_to_resume_over_the_api_and_resumes_with_an_eta(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn runs_are_listed_newest_first_with_start_end_duration_and_a_limit() {
+    let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
-    let api = Api::operator(&d);
+    // No event stream here: the requests go through the router, without a socket.
+    let api = Api::in_process(&d, &d.state.tokens.operator);
     common::blocking(move || {
         let first = start_prompted(&api);
         wait_prompt(&api, 0);
@@ -229,6 +224,7 @@ async fn runs_are_listed_newest_first_with_start_end_duration_and_a_limit() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sse_replays_missed_events_and_shutdown_sends_the_runs_final_event() {
+    let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
     let api = Api::operator(&d);
     let (id, reader) = common::blocking(move || {
@@ -294,8 +290,10 @@ async fn sse_replays_missed_events_and_shutdown_sends_the_runs_final_event() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn health_needs_no_token_and_every_answer_has_security_headers() {
+    let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
-    let api = Api::operator(&d);
+    // No event stream here: the requests go through the router, without a socket.
+    let api = Api::in_process(&d, &d.state.tokens.operator);
     common::blocking(move || {
         let h = api.get_anonymous("/api/health");
         assert_eq!(h.status, 200, "{}", h.body);
@@ -348,8 +346,10 @@ async fn health_needs_no_token_and_every_answer_has_security_headers() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_script_that_fails_validation_answers_its_violations_as_a_list() {
+    let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
-    let api = Api::operator(&d);
+    // No event stream here: the requests go through the router, without a socket.
+    let api = Api::in_process(&d, &d.state.tokens.operator);
     common::blocking(move || {
         // Line 3 moves out of the soft limits; line 4 captures with a camera the rig lacks.
         let bad = "// bad.rhai\nhome();\nmove_to(#{turntable: 1000.0});\ncapture(0.01);\n";
@@ -412,6 +412,7 @@ fn axis(api: &Api, id: &str) -> Value {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn several_axes_move_at_once_with_the_single_move_checks() {
+    let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
     let api = Api::operator(&d);
     let ro = Api::new(&d, &d.state.tokens.read_only);
@@ -487,6 +488,7 @@ async fn several_axes_move_at_once_with_the_single_move_checks() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_lamp_switches_while_an_axis_moves_but_the_axis_takes_one_command_at_a_time() {
+    let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
     let api = Api::operator(&d);
     common::blocking(move || {
@@ -556,6 +558,7 @@ fn submit(api: &Api, script: &str) -> u64 {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn queued_runs_start_in_order_and_can_be_reordered_removed_and_paused() {
+    let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
     let api = Api::operator(&d);
     common::blocking(move || {

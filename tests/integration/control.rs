@@ -1,6 +1,6 @@
 //! Pause, resume, abort and operator prompts, through the library's run control.
 
-mod common;
+use crate::common;
 
 use std::sync::Arc;
 
@@ -9,6 +9,7 @@ use stagehand::executor::{Event, RunControl};
 
 #[test]
 fn prompts_reach_the_operator_in_order() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().unwrap();
     let prepared = stagehand::session::prepare(
         script("mdf_laser.rhai"),
@@ -50,6 +51,7 @@ fn prompts_reach_the_operator_in_order() {
 
 #[test]
 fn operator_abort_stops_safely_and_resume_finishes() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().unwrap();
     let over = [
         ("views", "1"),
@@ -116,6 +118,7 @@ fn operator_abort_stops_safely_and_resume_finishes() {
 
 #[test]
 fn pause_holds_at_a_step_boundary_and_resume_continues() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().unwrap();
     let prepared = stagehand::session::prepare(
         script("btf.rhai"),
@@ -188,6 +191,7 @@ fn pause_holds_at_a_step_boundary_and_resume_continues() {
 
 #[test]
 fn abort_mid_run_leaves_lamps_and_laser_off() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().unwrap();
     let prepared = stagehand::session::prepare(
         script("quickstart.rhai"),
@@ -257,6 +261,7 @@ fn abort_mid_run_leaves_lamps_and_laser_off() {
 
 #[test]
 fn resuming_a_finished_run_changes_nothing() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().unwrap();
     let out = run_sequence(
         "quickstart.rhai",

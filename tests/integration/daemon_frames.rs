@@ -7,7 +7,7 @@
 //! dropped frame, a device error and a reconnect), then every test starts its own daemon on
 //! that data directory.
 
-mod common;
+use crate::common;
 
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
@@ -308,6 +308,7 @@ fn ids(frames: &[Value]) -> Vec<i64> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn frames_are_queried_by_metadata_and_paged() {
+    let _turn = crate::grbl_peer::alongside();
     with_api(|d, api| {
         let run = &d.run_id;
         let base = format!("/api/runs/{run}/frames");
@@ -531,6 +532,7 @@ fn read_tiff(bytes: &[u8]) -> ((u32, u32), tiff::decoder::DecodingResult) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn frames_download_as_png_tiff_and_exr_with_the_same_pixels() {
+    let _turn = crate::grbl_peer::alongside();
     with_api(|d, api| {
         let run = &d.run_id;
         // A raw frame: the PNG as stored, a 16-bit TIFF and a float EXR of the same DN.
@@ -627,6 +629,7 @@ fn png8_size(bytes: &[u8]) -> (u32, u32) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn thumbnails_are_8_bit_pngs_of_the_requested_size() {
+    let _turn = crate::grbl_peer::alongside();
     with_api(|d, api| {
         let run = &d.run_id;
         for kind in ["raw", "hdr"] {
@@ -660,6 +663,7 @@ async fn thumbnails_are_8_bit_pngs_of_the_requested_size() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn path_traversal_never_serves_a_file() {
+    let _turn = crate::grbl_peer::alongside();
     with_api(|d, api| {
         let run = &d.run_id;
         let (id, _) = first_of(d, "raw");
@@ -717,6 +721,7 @@ async fn path_traversal_never_serves_a_file() {
 /// frame and the step, and saying how to find and repair the damage.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn damaged_frame_files_are_refused_with_a_repair_hint() {
+    let _turn = crate::grbl_peer::alongside();
     with_api(|d, api| {
         let run = &d.damaged_id;
         for (id, path, how) in &d.damaged_frames {
@@ -794,6 +799,7 @@ async fn damaged_frame_files_are_refused_with_a_repair_hint() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn latest_frame_of_each_camera() {
+    let _turn = crate::grbl_peer::alongside();
     with_api(|d, api| {
         for cam in ["cam1", "cam5"] {
             let a = api.get(&format!("/api/cameras/{cam}/latest"));
@@ -839,6 +845,7 @@ fn sample(text: &str, name: &str, labels: &[&str]) -> Option<f64> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn executor_metrics_reach_the_metrics_endpoint() {
+    let _turn = crate::grbl_peer::alongside();
     with_api(|d, api| {
         let a = api.get("/api/metrics");
         assert_eq!(a.status, 200);
@@ -880,6 +887,7 @@ async fn executor_metrics_reach_the_metrics_endpoint() {
 /// run exactly once.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_daemon_run_is_listed_served_and_counted() {
+    let _turn = crate::grbl_peer::alongside();
     // The shared dataset first, so its (in-process) run is not counted below.
     let _ = dataset();
     let tmp = tempfile::tempdir().expect("temp dir");

@@ -6,7 +6,7 @@
 //! valid), never a 5xx. Plus device ownership: a second opener of the daemon's real ports is
 //! told where the daemon is.
 
-mod common;
+use crate::common;
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -851,6 +851,7 @@ fn specific_cases(op_token: &str) -> Vec<Case> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_route_answers_bad_input_with_a_4xx_and_a_message() -> TestResult {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir()?;
     let rig = small_rig(tmp.path());
     let d = start(tmp.path(), &rig).await?;
@@ -959,6 +960,7 @@ fn rig_with_a_real_port(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_second_opener_of_the_daemons_ports_is_told_to_use_remote() -> TestResult {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir()?;
     let (rig, port) = rig_with_a_real_port(tmp.path())?;
     let d = start(tmp.path(), &rig).await?;
@@ -1046,6 +1048,7 @@ async fn cli(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn run_remote_refuses_bad_input_and_runs_a_script_on_the_daemon() -> TestResult {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir()?;
     let rig = small_rig(tmp.path());
     let d = start(tmp.path(), &rig).await?;

@@ -5,7 +5,7 @@
 //! pause the run with a typed error naming the device, recover (reconnect, re-home) and
 //! finish with exactly the frames of an undisturbed run, byte for byte.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::sync::Arc;
@@ -187,6 +187,7 @@ fn tour_survives(port: &str, fault: Fault, devices: &[&str]) {
 
 #[test]
 fn tour_through_emulators_matches_the_simulated_rig_byte_for_byte() {
+    let _turn = crate::grbl_peer::alongside();
     let (_keep, dir) = clean_tour();
     assert_no_duplicates(dir);
     // The same tour on the simulated devices (virtual clock, no bytes) records the same frames:
@@ -209,6 +210,7 @@ fn tour_through_emulators_matches_the_simulated_rig_byte_for_byte() {
 
 #[test]
 fn grbl_disconnect_mid_move_reconnects_and_rehomes() {
+    let _turn = crate::grbl_peer::alongside();
     tour_survives(
         GRBL_PORT,
         Fault::Disconnect {
@@ -221,6 +223,7 @@ fn grbl_disconnect_mid_move_reconnects_and_rehomes() {
 
 #[test]
 fn grbl_garbage_is_a_protocol_error_and_recovers() {
+    let _turn = crate::grbl_peer::alongside();
     tour_survives(
         GRBL_PORT,
         Fault::Garbage {
@@ -233,11 +236,13 @@ fn grbl_garbage_is_a_protocol_error_and_recovers() {
 
 #[test]
 fn grbl_dropped_reply_times_out_and_recovers() {
+    let _turn = crate::grbl_peer::alongside();
     tour_survives(GRBL_PORT, Fault::DropReply { nth_command: 6 }, GRBL_AXES);
 }
 
 #[test]
 fn grbl_alarm_during_a_move_rehomes() {
+    let _turn = crate::grbl_peer::alongside();
     tour_survives(
         GRBL_PORT,
         Fault::AlarmDuringMove {
@@ -250,6 +255,7 @@ fn grbl_alarm_during_a_move_rehomes() {
 
 #[test]
 fn relay_board_reset_restores_the_lamps() {
+    let _turn = crate::grbl_peer::alongside();
     tour_survives(
         RELAY_PORT,
         Fault::BoardReset { after_commands: 26 },
@@ -259,6 +265,7 @@ fn relay_board_reset_restores_the_lamps() {
 
 #[test]
 fn stalled_camera_is_a_missing_frame_and_the_step_is_retaken() {
+    let _turn = crate::grbl_peer::alongside();
     tour_survives(
         GRBL_PORT,
         Fault::StallCamera {
@@ -271,6 +278,7 @@ fn stalled_camera_is_a_missing_frame_and_the_step_is_retaken() {
 
 #[test]
 fn slow_replies_within_the_timeout_are_no_fault() {
+    let _turn = crate::grbl_peer::alongside();
     let faults = Faults::new([Fault::SlowReply {
         nth_command: 4,
         delay_s: 0.3,
@@ -284,6 +292,7 @@ fn slow_replies_within_the_timeout_are_no_fault() {
 
 #[test]
 fn quickstart_runs_with_every_serial_device_a_real_driver() {
+    let _turn = crate::grbl_peer::alongside();
     let out = tempfile::tempdir().expect("out");
     let script = ScriptSource::from_file(&root().join("sequences/quickstart.rhai")).unwrap();
     let o = run_emulated(script, &[], &[], out.path());

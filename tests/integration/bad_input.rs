@@ -1,7 +1,7 @@
 //! Bad input: every case gives a clear message naming the place, a non-zero exit, never a
 //! panic, and leaves no inconsistent dataset.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -40,6 +40,7 @@ fn assert_bad(o: &Output, needles: &[&str]) {
 
 #[test]
 fn syntax_error_names_file_line_col() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().unwrap();
     let s = write(
         tmp.path(),
@@ -65,6 +66,7 @@ fn syntax_error_names_file_line_col() {
 
 #[test]
 fn runaway_script_is_stopped() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().unwrap();
     let s = write(tmp.path(), "spin.rhai", "let x = 0;\nloop { x += 1; }\n");
     let o = stagehand(&["plan", &s]);
@@ -73,6 +75,7 @@ fn runaway_script_is_stopped() {
 
 #[test]
 fn unknown_device_is_reported_at_the_call() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().unwrap();
     let s = write(
         tmp.path(),
@@ -91,6 +94,7 @@ fn unknown_device_is_reported_at_the_call() {
 
 #[test]
 fn target_outside_soft_limits() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().unwrap();
     let s = write(
         tmp.path(),
@@ -103,6 +107,7 @@ fn target_outside_soft_limits() {
 
 #[test]
 fn negative_and_absurd_exposures() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().unwrap();
     let s = write(
         tmp.path(),
@@ -120,6 +125,7 @@ fn negative_and_absurd_exposures() {
 
 #[test]
 fn missing_and_malformed_rig_files() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().unwrap();
     let seq = root().join("sequences/quickstart.rhai");
     let o = stagehand(&["plan", seq.to_str().unwrap(), "--rig", "/no/such/rig.toml"]);
@@ -135,6 +141,7 @@ fn missing_and_malformed_rig_files() {
 
 #[test]
 fn bad_set_override() {
+    let _turn = crate::grbl_peer::alongside();
     let seq = root().join("sequences/quickstart.rhai");
     let o = stagehand(&["plan", seq.to_str().unwrap(), "--set", "no_such_param=3"]);
     assert_bad(&o, &["no_such_param"]);
@@ -144,6 +151,7 @@ fn bad_set_override() {
 
 #[test]
 fn unwritable_output_directory() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().unwrap();
     let file = write(tmp.path(), "not-a-dir", "x");
     let seq = root().join("sequences/quickstart.rhai");
@@ -154,6 +162,7 @@ fn unwritable_output_directory() {
 
 #[test]
 fn disk_full_fails_cleanly_and_resumes() {
+    let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().unwrap();
     let rig = small_rig_file(tmp.path(), "lightstage", 32, 24);
     let seq = root().join("sequences/quickstart.rhai");
@@ -199,6 +208,7 @@ fn disk_full_fails_cleanly_and_resumes() {
 
 #[test]
 fn prompt_without_an_operator_aborts_safely() {
+    let _turn = crate::grbl_peer::alongside();
     // No --yes and stdin closed: the run stops at the first prompt, resumable.
     let tmp = tempfile::tempdir().unwrap();
     let rig = small_rig_file(tmp.path(), "lightstage", 32, 24);
