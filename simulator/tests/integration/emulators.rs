@@ -111,11 +111,7 @@ impl Wire {
         let deadline = tokio::time::Instant::now() + Duration::from_secs(2);
         loop {
             let text = self.text();
-            if let Some(end) = text.match_indices("\r\n").map(|(i, _)| i).find(|&i| {
-                let start = text[..i].rfind('\n').map_or(0, |j| j + 1);
-                let l = &text[start..i];
-                l == "ok" || l.starts_with("error:")
-            }) {
+            if let Some(end) = grbl_reply_end(&text) {
                 self.got.drain(..end + 2);
                 return text[..end].to_string();
             }
@@ -151,6 +147,16 @@ fn numato_reply(cmd: &str, raw: &str) -> String {
     rest.trim_end_matches('>')
         .trim_end_matches("\n\r")
         .to_string()
+}
+
+/// Where the first complete GRBL reply in `text` ends: the index of the `\r\n` after its
+/// `ok` or `error:N` line.
+fn grbl_reply_end(text: &str) -> Option<usize> {
+    text.match_indices("\r\n").map(|(i, _)| i).find(|&i| {
+        let start = text[..i].rfind('\n').map_or(0, |j| j + 1);
+        let l = &text[start..i];
+        l == "ok" || l.starts_with("error:")
+    })
 }
 
 fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
@@ -230,11 +236,7 @@ impl Host {
         loop {
             self.got.push_str(&self.em.read());
             let text = self.got.clone();
-            if let Some(end) = text.match_indices("\r\n").map(|(i, _)| i).find(|&i| {
-                let start = text[..i].rfind('\n').map_or(0, |j| j + 1);
-                let l = &text[start..i];
-                l == "ok" || l.starts_with("error:")
-            }) {
+            if let Some(end) = grbl_reply_end(&text) {
                 self.got.drain(..end + 2);
                 return text[..end].to_string();
             }
