@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # `stagehand verify` on a 10,000-frame run (1,250 captures × 8 cameras of 64×48 on the simulated
 # light stage): the library call three times with a one-thread SHA-256 baseline measured on the
-# same files (benches/verify.rs), then the release CLI itself three times on that run.
+# same files (bench/verify.rs), then the release CLI itself three times on that run.
 #
 #   bench/verify.sh            (STAGEHAND_VERIFY_FRAMES / STAGEHAND_VERIFY_SIZE as in the bench)
 set -euo pipefail

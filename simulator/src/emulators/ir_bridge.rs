@@ -7,7 +7,9 @@ use std::sync::Arc;
 
 use stagehand_devices::rig::CartSpec;
 
-use super::{EmulatorHandle, EmulatorStats, Fault, Faults, Firmware, Output, spawn_firmware};
+use super::{
+    EmulatorHandle, EmulatorStats, Fault, Faults, Firmware, Output, SteppedEmulator, spawn_firmware,
+};
 use crate::world::World;
 
 /// Reply to `ver`.
@@ -71,20 +73,36 @@ impl IrBridgeEmulator {
         name: &str,
         faults: Arc<Faults>,
     ) -> std::io::Result<EmulatorHandle> {
+        let (fw, stats) = Self::firmware(&world, cart, &faults);
+        spawn_firmware(fw, &world, link_dir, name, stats, faults)
+    }
+
+    /// A bridge for `cart` on the caller's clock, without a pty (see [`SteppedEmulator`]).
+    pub fn stepped(world: Arc<World>, cart: &CartSpec, faults: Arc<Faults>) -> SteppedEmulator {
+        let (fw, stats) = Self::firmware(&world, cart, &faults);
+        SteppedEmulator::new(fw, &world, stats, faults)
+    }
+
+    /// The firmware, with its fresh counters.
+    fn firmware(
+        world: &Arc<World>,
+        cart: &CartSpec,
+        faults: &Arc<Faults>,
+    ) -> (Bridge, Arc<EmulatorStats>) {
         let stats = Arc::new(EmulatorStats::default());
         let fw = Bridge {
-            world: Arc::clone(&world),
+            world: Arc::clone(world),
             channel: cart.ir_channel.saturating_sub(1),
             output: u8::from(cart.ir_output.eq_ignore_ascii_case("B")),
             speed_step: f64::from(cart.ir_speed_step.clamp(1, 7)),
             speed_mm_s: cart.speed_mm_s,
             travel_mm: cart.travel_mm,
             stats: Arc::clone(&stats),
-            faults: Arc::clone(&faults),
+            faults: Arc::clone(faults),
             line: Vec::new(),
             run: None,
         };
-        spawn_firmware(fw, &world, link_dir, name, stats, faults)
+        (fw, stats)
     }
 }
 

@@ -1,6 +1,7 @@
 //! Firmware emulators: the device side of every wire protocol in `devices/PROTOCOLS.md`, spoken
 //! over pseudo-terminals (serial devices) or in memory (HID), driven by and updating the
-//! simulated [`World`] on its clock, with fault injection. Real drivers talk to them exactly as
+//! simulated [`World`] on its clock, with fault injection. [`SteppedEmulator`] runs the same
+//! firmware on the caller's clock, without a pty, for tests that check physics at exact times. Real drivers talk to them exactly as
 //! to the hardware, so a driver/emulator pair tests both readings of the protocol document.
 
 pub mod faults;
@@ -11,6 +12,7 @@ pub mod numato;
 // The only unsafe in the crate: registering the pty master with tokio, and FIONREAD.
 #[allow(unsafe_code)]
 pub mod pty;
+pub mod stepped;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -26,6 +28,7 @@ pub use hid_board::HidRelayBoard;
 pub use ir_bridge::IrBridgeEmulator;
 pub use numato::{NumatoConfig, NumatoEmulator};
 pub use pty::EmulatedPort;
+pub use stepped::SteppedEmulator;
 
 use crate::world::World;
 
@@ -62,6 +65,10 @@ impl EmulatorStats {
 
     pub(crate) fn count_command(&self) -> u64 {
         self.commands.fetch_add(1, Ordering::Relaxed) + 1
+    }
+
+    pub(crate) fn count_disconnect(&self) {
+        self.disconnects.fetch_add(1, Ordering::Relaxed);
     }
 
     pub(crate) fn count_overflow(&self) {
@@ -274,7 +281,7 @@ async fn carry_out(
                     tracing::warn!("emulator could not re-create its pty: {e}");
                     clock.sleep_s(0.05).await;
                 }
-                stats.disconnects.fetch_add(1, Ordering::Relaxed);
+                stats.count_disconnect();
             }
         }
     }

@@ -8,7 +8,8 @@ use std::sync::Arc;
 use stagehand_devices::rig::{Backend, RigSpec};
 
 use super::{
-    EmulatorHandle, EmulatorStats, Fault, Faults, Firmware, Output, drive_channel, spawn_firmware,
+    EmulatorHandle, EmulatorStats, Fault, Faults, Firmware, Output, SteppedEmulator, drive_channel,
+    spawn_firmware,
 };
 use crate::world::World;
 
@@ -73,19 +74,40 @@ impl NumatoEmulator {
         name: &str,
         faults: Arc<Faults>,
     ) -> std::io::Result<EmulatorHandle> {
+        let (fw, stats) = Self::firmware(&world, config, &faults);
+        spawn_firmware(fw, &world, link_dir, name, stats, faults)
+    }
+
+    /// A board set up by `config` on the caller's clock, without a pty (see
+    /// [`SteppedEmulator`]).
+    pub fn stepped(
+        world: Arc<World>,
+        config: NumatoConfig,
+        faults: Arc<Faults>,
+    ) -> SteppedEmulator {
+        let (fw, stats) = Self::firmware(&world, config, &faults);
+        SteppedEmulator::new(fw, &world, stats, faults)
+    }
+
+    /// The firmware, with its fresh counters.
+    fn firmware(
+        world: &Arc<World>,
+        config: NumatoConfig,
+        faults: &Arc<Faults>,
+    ) -> (Numato, Arc<EmulatorStats>) {
         let stats = Arc::new(EmulatorStats::default());
         let fw = Numato {
-            world: Arc::clone(&world),
+            world: Arc::clone(world),
             relays: vec![false; config.channels as usize],
             gpio: [false; GPIO_LINES],
             board_id: config.board_id.clone(),
             config,
             stats: Arc::clone(&stats),
-            faults: Arc::clone(&faults),
+            faults: Arc::clone(faults),
             line: Vec::new(),
             lease_from_s: 0.0,
         };
-        spawn_firmware(fw, &world, link_dir, name, stats, faults)
+        (fw, stats)
     }
 }
 

@@ -1,0 +1,112 @@
+//! The simulated rig behaves physically: moves take their profile time on the virtual clock,
+//! backlash shows up unless the approach takes it up, lamps warm up, and a move during an
+//! exposure is caught.
+
+use std::sync::Arc;
+
+use stagehand_devices::axis::{AxisDriver, AxisHandle};
+use stagehand_devices::clock::RigClock;
+use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, RigSpec, parse_rig};
+use stagehand_devices::{DeviceError, DeviceErrorKind};
+use stagehand_simulator::World;
+use stagehand_simulator::sim_devices::SimAxis;
+use stagehand_simulator::world::warmup_fraction;
+
+fn rig() -> Arc<RigSpec> {
+    let text = BUILTIN_LIGHTSTAGE
+        .replace("width = 1024", "width = 16")
+        .replace("height = 768", "height = 12");
+    Arc::new(parse_rig(&text, "lightstage.toml").unwrap())
+}
+
+fn world() -> Arc<World> {
+    World::new(rig(), RigClock::default(), 1).unwrap()
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_move_takes_its_trapezoid_time_on_the_virtual_clock() {
+    let _turn = crate::grbl_peer::alongside();
+    let w = world();
+    let spec = w.rig().axis("turntable").unwrap().clone();
+    let axis = AxisHandle::spawn(spec.clone(), SimAxis::new(spec.clone(), w.clone()));
+    axis.home().await.unwrap();
+    let t0 = w.clock().now_s();
+    axis.move_to(90.0).await.unwrap();
+    let took = w.clock().now_s() - t0;
+    let expected = stagehand_devices::axis::planned_move_s(&spec, 0.0, 90.0);
+    assert!(
+        (took - expected).abs() < 0.01,
+        "took {took}, profile says {expected}"
+    );
+    let at = w.snapshot_at(w.clock().now_s()).axes["turntable"];
+    assert!((at - 90.0).abs() <= 1.0 / spec.steps_per_deg, "{at}");
+}
+
+#[tokio::test(start_paused = true)]
+async fn backlash_is_taken_up_by_the_positive_final_approach() {
+    let _turn = crate::grbl_peer::alongside();
+    let w = world();
+    let spec = w.rig().axis("light_arc").unwrap().clone();
+    assert!(spec.backlash_deg > 0.0);
+    // Through the handle: 60 → 30 approaches from below, so the load sits at the target.
+    let axis = AxisHandle::spawn(spec.clone(), SimAxis::new(spec.clone(), w.clone()));
+    axis.home().await.unwrap();
+    axis.move_to(60.0).await.unwrap();
+    axis.move_to(30.0).await.unwrap();
+    let load = w.snapshot_at(w.clock().now_s()).axes["light_arc"];
+    assert!(
+        (load - 30.0).abs() <= 1.0 / spec.steps_per_deg,
+        "load at {load}"
+    );
+
+    // The bare driver moving down shows the backlash on the load side.
+    let w2 = world();
+    let mut bare = SimAxis::new(spec.clone(), w2.clone());
+    bare.home().await.unwrap();
+    bare.move_to(60.0).await.unwrap();
+    bare.move_to(30.0).await.unwrap();
+    let load = w2.snapshot_at(w2.clock().now_s()).axes["light_arc"];
+    assert!(
+        (load - 30.0 - spec.backlash_deg).abs() <= 1.0 / spec.steps_per_deg,
+        "load at {load}"
+    );
+}
+
+#[tokio::test(start_paused = true)]
+async fn moving_while_a_camera_exposes_is_refused_and_recorded() {
+    let _turn = crate::grbl_peer::alongside();
+    let w = world();
+    let spec = w.rig().axis("turntable").unwrap().clone();
+    let mut axis = SimAxis::new(spec, w.clone());
+    axis.home().await.unwrap();
+    let now = w.clock().now_s();
+    w.begin_exposure_for_test(now, now + 1.0);
+    let err = axis.move_to(10.0).await.unwrap_err();
+    assert!(
+        matches!(
+            err,
+            DeviceError {
+                kind: DeviceErrorKind::MovingWhileExposing,
+                ..
+            }
+        ),
+        "{err}"
+    );
+    assert_eq!(w.violations().len(), 1);
+}
+
+#[test]
+fn lamp_warm_up_reaches_exactly_full_output() {
+    let _turn = crate::grbl_peer::alongside();
+    assert_eq!(warmup_fraction(0.0, 0.8), 0.0);
+    assert!(warmup_fraction(0.4, 0.8) > 0.5 && warmup_fraction(0.4, 0.8) < 1.0);
+    assert_eq!(warmup_fraction(0.8, 0.8), 1.0);
+    assert_eq!(warmup_fraction(100.0, 0.8), 1.0);
+    assert_eq!(warmup_fraction(0.1, 0.0), 1.0);
+    let mut last = 0.0;
+    for i in 0..=100 {
+        let f = warmup_fraction(i as f64 * 0.01, 0.8);
+        assert!(f >= last && (0.0..=1.0).contains(&f));
+        last = f;
+    }
+}
