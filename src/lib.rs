@@ -12,6 +12,7 @@ pub mod client;
 pub mod daemon;
 pub mod dry_run;
 pub mod estimate;
+pub mod evaluate;
 pub mod executor;
 pub mod plan;
 pub mod rig;

@@ -170,6 +170,10 @@ fn sim_manifest(spec: &stagehand_devices::rig::RigSpec) -> Result<SimManifest, S
         scene_sha256: sha256_hex(p.scene_text.as_bytes()),
         scene_text: p.scene_text,
         ground_truth: p.ground_truth,
+        as_built: renderer
+            .sim()
+            .as_built
+            .map(|_| renderer.as_built().truth(spec)),
     })
 }
 

@@ -26,6 +26,9 @@ pub const PLAN: &str = "plan.json";
 pub const RIG: &str = "rig.toml";
 /// Scene file name (simulated rigs).
 pub const SCENE: &str = "scene.toml";
+/// The simulated rig as built (ground truth for evaluation only; simulated rigs with
+/// `[sim.as_built]`).
+pub const AS_BUILT: &str = "as_built.json";
 /// SQLite index file name.
 pub const INDEX: &str = "index.sqlite";
 /// Frames directory name.
@@ -45,7 +48,7 @@ pub fn is_frame_path(rel: &str) -> bool {
 }
 
 /// Names the script copy may not take, because the layout uses them.
-const RESERVED: [&str; 6] = [MANIFEST, PLAN, RIG, SCENE, INDEX, FRAMES_DIR];
+const RESERVED: [&str; 7] = [MANIFEST, PLAN, RIG, SCENE, AS_BUILT, INDEX, FRAMES_DIR];
 
 /// Replaces every character outside `[A-Za-z0-9_-]` with `_` (and maps "" to `fallback`), so
 /// ids from scripts and rig files are safe in file names.

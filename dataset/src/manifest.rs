@@ -63,6 +63,11 @@ pub struct SimManifest {
     pub scene_text: String,
     /// Ground truth written beside every capture (`sim.ground_truth`).
     pub ground_truth: bool,
+    /// The rig as built (`[sim.as_built]`): written to `as_built.json` when the run is
+    /// created, for evaluation only, and kept out of the manifest so processing, which reads
+    /// the manifest, never sees it.
+    #[serde(skip)]
+    pub as_built: Option<serde_json::Value>,
 }
 
 impl Manifest {

@@ -191,6 +191,15 @@ impl RunStore {
         write_atomic(dir, layout::RIG, manifest.rig_toml.as_bytes())?;
         if let Some(sim) = &manifest.sim {
             write_atomic(dir, layout::SCENE, sim.scene_text.as_bytes())?;
+            if let Some(truth) = &sim.as_built {
+                let bytes =
+                    serde_json::to_vec_pretty(truth).map_err(|source| StorageError::Json {
+                        op: "encode",
+                        path: dir.join(layout::AS_BUILT),
+                        source,
+                    })?;
+                write_atomic(dir, layout::AS_BUILT, &bytes)?;
+            }
         }
         let index = Index::create(&dir.join(layout::INDEX), &manifest, plan)?;
         fsync_dir(dir)?;

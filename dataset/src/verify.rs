@@ -561,6 +561,7 @@ fn check_layout(
         layout::PLAN,
         layout::RIG,
         layout::SCENE,
+        layout::AS_BUILT,
         layout::FRAMES_DIR,
         layout::LOCK,
     ]

@@ -61,3 +61,26 @@ pub use response_solve::{ResponseFit, ResponseParams, solve_response};
 pub use rig_frame::{TurntableAxis, rig_to_camera, turntable_axis};
 pub use weight::DnRange;
 pub use white_balance::{PatchMeasurement, WhiteBalance, white_balance};
+
+#[cfg(test)]
+mod tests {
+    /// Processing must measure, not copy the answer: no file of this crate mentions the
+    /// simulator's ground truth (`as_built.json`, ground-truth planes).
+    #[test]
+    fn processing_never_reads_the_simulators_ground_truth() {
+        let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+        for entry in std::fs::read_dir(&src).unwrap() {
+            let path = entry.unwrap().path();
+            let text = std::fs::read_to_string(&path).unwrap();
+            // The code, not this test's own list.
+            let code = text.split("#[cfg(test)]").next().unwrap_or_default();
+            for forbidden in ["as_built", "AS_BUILT", "ground_truth(", "StoredGroundTruth"] {
+                let hits = code
+                    .lines()
+                    .filter(|l| !l.trim_start().starts_with("//") && l.contains(forbidden))
+                    .count();
+                assert_eq!(hits, 0, "{} mentions {forbidden}", path.display());
+            }
+        }
+    }
+}

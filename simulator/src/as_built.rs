@@ -20,9 +20,10 @@ use crate::render::rng::{hash3, mix64};
 use crate::render::sensor::Response;
 
 /// How strongly non-linear the drawn camera responses are.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ResponseStyle {
+    #[default]
     /// Scientific cameras: y = x(1 − c + c·x) with c drawn per channel in [0, 0.08].
     Gentle,
     /// The seed's 8-bit consumer cameras: y = x^(1/γ) with γ drawn per channel in [2.0, 2.4].
@@ -31,10 +32,12 @@ pub enum ResponseStyle {
 
 /// The `[sim.as_built]` settings: draw deviations with `seed` in `response` style.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct AsBuiltSpec {
     /// Seed of the draws (the same seed, the same rig).
     pub seed: u64,
-    /// Response style of the cameras.
+    /// Response style of the cameras (`gentle` unless set).
+    #[serde(default)]
     pub response: ResponseStyle,
 }
 
@@ -288,7 +291,54 @@ impl AsBuilt {
 
 #[cfg(test)]
 mod tests {
+    use glam::Vec3A;
+
     use super::*;
+
+    #[test]
+    fn the_truth_projects_points_where_the_renderer_does() {
+        let rig = stagehand_devices::rig::parse_rig(
+            stagehand_devices::rig::BUILTIN_LIGHTSTAGE,
+            "lightstage.toml",
+        )
+        .unwrap();
+        let a = AsBuilt::draw(
+            &rig,
+            AsBuiltSpec {
+                seed: 11,
+                response: ResponseStyle::Gentle,
+            },
+        );
+        for cam in &rig.cameras {
+            let pose = a.camera(&cam.id).pose(cam, ToSample::new(0.0));
+            let cv = pose.opencv();
+            for p in [[0.0, 0.0, 0.0], [20.0, -15.0, 3.0], [-25.0, 25.0, 0.0]] {
+                let Some((x, y)) = pose.project(Vec3A::new(p[0] as f32, p[1] as f32, p[2] as f32))
+                else {
+                    continue;
+                };
+                let pc: Vec<f64> = (0..3)
+                    .map(|r| {
+                        (0..3).map(|c| cv.rotation[r][c] * p[c]).sum::<f64>() + cv.translation[r]
+                    })
+                    .collect();
+                let (u, v) = (pc[0] / pc[2], pc[1] / pc[2]);
+                let [k1, k2, p1, p2, k3] = cv.distortion;
+                let r2 = u * u + v * v;
+                let radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
+                let ud = u * radial + 2.0 * p1 * u * v + p2 * (r2 + 2.0 * u * u);
+                let vd = v * radial + p1 * (r2 + 2.0 * v * v) + 2.0 * p2 * u * v;
+                let (px, py) = (cv.fx * ud + cv.cx, cv.fy * vd + cv.cy);
+                // The renderer's pixel (x, y) is sampled at (x + 0.5, y + 0.5).
+                assert!(
+                    (px - (f64::from(x) - 0.5)).abs() < 0.01
+                        && (py - (f64::from(y) - 0.5)).abs() < 0.01,
+                    "{}: ({px}, {py}) vs ({x}, {y})",
+                    cam.id
+                );
+            }
+        }
+    }
 
     #[test]
     fn draws_are_deterministic_within_tolerance_and_differ_per_device() {

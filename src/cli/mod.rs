@@ -1,5 +1,6 @@
 //! Command-line interface. Exit codes: 0 done, 1 failed or aborted, 2 bad input.
 
+mod calibrate;
 mod devices;
 mod operator;
 mod progress;
@@ -120,6 +121,20 @@ enum Command {
         #[arg(long)]
         emulate: bool,
     },
+    /// Compute a calibration from a run and store it (versioned, content-addressed) in
+    /// `calibrations/` beside the run.
+    Calibrate {
+        #[command(subcommand)]
+        command: calibrate::CalibrateCommand,
+    },
+    /// List or show stored calibrations.
+    Calibrations {
+        #[command(subcommand)]
+        command: calibrate::CalibrationsCommand,
+    },
+    /// Measure a simulated run's calibrations against the simulator's ground truth
+    /// (`as_built.json`; rigs with `[sim.as_built]`) and print the figures as JSON.
+    Evaluate { run_dir: PathBuf },
     /// Check a run directory: every file against the index (present, size, SHA-256,
     /// decodable), every index row against the plan, no stray or temp files. Exit 0 when all
     /// is well, 1 on any problem (with the retake command that repairs damaged steps).
@@ -167,6 +182,9 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
     let started = std::time::Instant::now();
     match command {
         Command::Sim { command } => Ok(sim::run(command)),
+        Command::Calibrate { command } => calibrate::calibrate(command),
+        Command::Calibrations { command } => calibrate::calibrations(command),
+        Command::Evaluate { run_dir } => calibrate::evaluate(&run_dir),
         Command::Serve {
             rig,
             listen,

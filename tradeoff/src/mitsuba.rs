@@ -27,7 +27,7 @@ use serde_json::json;
 use super::{Setup, TradeoffError};
 use stagehand_simulator::render::RenderError;
 use stagehand_simulator::render::config::SimSpec;
-use stagehand_simulator::render::geometry::{CameraPose, RigAngles, ToSample};
+use stagehand_simulator::render::geometry::{RigAngles, ToSample};
 use stagehand_simulator::render::lights::{self, Emitter, HALOGEN_RADIUS_MM, TURNTABLE_RADIUS_MM};
 use stagehand_simulator::render::sample::Sample;
 
@@ -228,7 +228,13 @@ pub fn export(
     std::fs::create_dir_all(dir).map_err(|e| TradeoffError::io(dir, e))?;
     let rig = &setup.rig;
     let world = &setup.world;
-    let size_mm = SimSpec::of(rig).map_err(RenderError::from)?.sample_size_mm;
+    let sim = SimSpec::of(rig).map_err(RenderError::from)?;
+    let size_mm = sim.sample_size_mm;
+    // The same rig the renderer draws: as built when `[sim.as_built]` asks for it.
+    let as_built = sim.as_built.map_or_else(
+        || stagehand_simulator::as_built::AsBuilt::nominal(rig),
+        |spec| stagehand_simulator::as_built::AsBuilt::draw(rig, spec),
+    );
     let sample = Sample::build(&world.fixture, size_mm as f32, relief_mm).map_err(|e| match e {
         RenderError::UnknownFixture(_) => TradeoffError::UnknownScene {
             scene: world.fixture.clone(),
@@ -244,7 +250,7 @@ pub fn export(
     }
     let angles = RigAngles::from_world(rig, &world.axes);
     let to_sample = ToSample::new(angles.turntable_deg);
-    let (lit, _) = lights::lit_lamps(rig, world, angles, to_sample);
+    let (lit, _) = lights::lit_lamps(rig, &as_built, world, angles, to_sample);
     let mut emitters = Vec::new();
     for light in &lit {
         match light.emitter {
@@ -276,7 +282,7 @@ pub fn export(
             expected: "a camera of the rig".into(),
             got: setup.camera.clone(),
         })?;
-    let pose = CameraPose::new(cam, to_sample);
+    let pose = as_built.camera(&cam.id).pose(cam, to_sample);
     let (mesh, texels) = sample_mesh(&sample);
     put(&dir.join("sample.ply"), &mesh.to_ply())?;
     put(

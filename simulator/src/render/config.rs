@@ -35,6 +35,10 @@ pub struct SimSpec {
     /// every frame.
     #[serde(default)]
     pub ground_truth: bool,
+    /// Draw an "as built" rig (`[sim.as_built]`): cameras, responses and lamps off nominal,
+    /// recorded in `as_built.json` beside each run for evaluation.
+    #[serde(default)]
+    pub as_built: Option<crate::as_built::AsBuiltSpec>,
 }
 
 fn default_sample() -> String {
@@ -55,6 +59,7 @@ impl Default for SimSpec {
             quality: default_quality(),
             knobs: SimKnobs::default(),
             ground_truth: false,
+            as_built: None,
         }
     }
 }

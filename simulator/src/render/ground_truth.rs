@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use serde_json::{Value, json};
 use stagehand_devices::ground_truth::{GroundTruthData, GroundTruthPlane};
 
-use super::geometry::{CameraPose, RigAngles, ToSample};
+use super::geometry::{RigAngles, ToSample};
 use super::material::{Material, Model};
 use super::scene::{Hit, Scene, Shading};
 use super::{RenderError, Renderer, lights};
@@ -132,7 +132,7 @@ impl Renderer {
         let knobs = self.knobs_for(&sample);
         let angles = RigAngles::from_world(&self.rig, &world.axes);
         let to_sample = ToSample::new(angles.turntable_deg);
-        let pose = CameraPose::new(cam, to_sample);
+        let pose = self.as_built().camera(&cam.id).pose(cam, to_sample);
         let tubes = lights::tube_bodies(&self.rig, world, to_sample);
         // Geometry only: no lights, no shading, no shadow maps.
         let shading = Shading {
@@ -221,6 +221,7 @@ mod tests {
     use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, RigSpec, parse_rig};
 
     use super::*;
+    use crate::render::geometry::CameraPose;
 
     fn rig(fixture: &str, w: u32, h: u32) -> RigSpec {
         let mut rig = parse_rig(BUILTIN_LIGHTSTAGE, "test.toml").expect("built-in rig parses");

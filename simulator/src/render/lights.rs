@@ -9,6 +9,7 @@ use glam::Vec3A;
 use stagehand_devices::rig::{LampKind, RigSpec};
 
 use super::geometry::{RigAngles, ToSample, spherical};
+use crate::as_built::AsBuilt;
 use crate::world_snapshot::WorldSnapshot;
 
 /// Distance at which a power-1 lamp gives unit irradiance.
@@ -136,10 +137,12 @@ fn tube_centre(rig: &RigSpec, world: &WorldSnapshot, height_mm: f64) -> Vec3A {
     Vec3A::new((world.cart_mm - 0.5 * travel) as f32, 0.0, height_mm as f32)
 }
 
-/// Every lit lamp of the rig (output > 0) in the sample frame, plus the ids in the world's
+/// Every lit lamp of the rig (output > 0) in the sample frame, with its as-built intensity and
+/// colour, plus the ids in the world's
 /// lamp table that the rig does not have.
 pub fn lit_lamps(
     rig: &RigSpec,
+    as_built: &AsBuilt,
     world: &WorldSnapshot,
     angles: RigAngles,
     to_sample: ToSample,
@@ -150,7 +153,13 @@ pub fn lit_lamps(
         if output <= 0.0 {
             continue;
         }
-        let strength = (output * lamp.power) as f32;
+        let built = as_built.lamp(&lamp.id);
+        let strength = (output * lamp.power * built.intensity) as f32;
+        let tint = Vec3A::new(
+            built.rgb[0] as f32,
+            built.rgb[1] as f32,
+            built.rgb[2] as f32,
+        );
         let (rgb, emitter) = match lamp.kind {
             LampKind::Halogen => {
                 let world_pos =
@@ -197,7 +206,7 @@ pub fn lit_lamps(
             id: lamp.id.clone(),
             kind: lamp.kind,
             output: output as f32,
-            rgb,
+            rgb: rgb * tint,
             emitter,
         });
     }

@@ -54,9 +54,10 @@ use stagehand_devices::rig::{CameraSpec, LampKind, RigSpec};
 
 pub use error::RenderError;
 
+use crate::as_built::AsBuilt;
 use crate::render::config::SimSpec;
 use crate::world_snapshot::WorldSnapshot;
-use geometry::{CameraPose, RigAngles, ToSample};
+use geometry::{RigAngles, ToSample};
 use laser::LaserSheet;
 use quality::Knobs;
 use sample::Sample;
@@ -78,6 +79,8 @@ pub struct Renderer {
     samples: Mutex<HashMap<String, Arc<Sample>>>,
     visibility: shadow::VisibilityCache,
     passes: TransportCaches,
+    /// The rig as built: nominal unless `[sim.as_built]` asks for deviations.
+    as_built: AsBuilt,
 }
 
 /// Per-frame light-transport results shared by the cameras of one rig step (same sample,
@@ -128,14 +131,23 @@ impl Renderer {
         if !(size.is_finite() && size > 0.0 && size <= MAX_SAMPLE_SIZE_MM) {
             return Err(RenderError::InvalidSampleSize(size));
         }
+        let as_built = sim
+            .as_built
+            .map_or_else(|| AsBuilt::nominal(rig), |spec| AsBuilt::draw(rig, spec));
         Ok(Renderer {
             rig: rig.clone(),
+            as_built,
             sim,
             knobs,
             samples: Mutex::new(HashMap::new()),
             visibility: shadow::VisibilityCache::default(),
             passes: TransportCaches::default(),
         })
+    }
+
+    /// The rig as built that this renderer draws (nominal without `[sim.as_built]`).
+    pub fn as_built(&self) -> &AsBuilt {
+        &self.as_built
     }
 
     /// The rig's `[sim]` settings this renderer was made with.
@@ -189,7 +201,9 @@ impl Renderer {
         let cam = self.camera(camera_id)?;
         // Light is integrated only for a positive exposure; dark frames skip tracing.
         let radiance = self.trace(world, cam, exposure_s > 0.0)?;
-        let sensor = Sensor::new(cam.bit_depth, exposure_s, gain, noise_seed);
+        let response = self.as_built.camera(&cam.id).sensor_response();
+        let sensor =
+            Sensor::new(cam.bit_depth, exposure_s, gain, noise_seed).with_response(response);
         let mut pixels = vec![0u16; radiance.rgb.len()];
         let width = cam.width as usize;
         pixels
@@ -210,7 +224,7 @@ impl Renderer {
             "bit_depth": cam.bit_depth,
             "full_well_e": sensor::FULL_WELL_E,
             "read_noise_dn": sensor::READ_NOISE_DN_12BIT * gain * sensor::max_dn(cam.bit_depth) / 4095.0,
-            "response": format!("y = x(1 - {c} + {c}x) of full scale", c = sensor::RESPONSE_CURVATURE),
+            "response": response.describe(),
             "light_integrated": notes["light_integrated"].clone(),
         });
         notes["black_level_dn"] = json!(sensor::black_level_dn(cam.bit_depth));
@@ -267,8 +281,9 @@ impl Renderer {
         let knobs = self.knobs_for(&sample);
         let angles = RigAngles::from_world(&self.rig, &world.axes);
         let to_sample = ToSample::new(angles.turntable_deg);
-        let pose = CameraPose::new(cam, to_sample);
-        let (lights, unknown_lamps) = lights::lit_lamps(&self.rig, world, angles, to_sample);
+        let pose = self.as_built.camera(&cam.id).pose(cam, to_sample);
+        let (lights, unknown_lamps) =
+            lights::lit_lamps(&self.rig, &self.as_built, world, angles, to_sample);
         let laser = match &world.laser {
             None => None,
             Some(beam) => {

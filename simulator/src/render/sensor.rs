@@ -86,6 +86,10 @@ impl Response {
     /// A one-line description for frame notes.
     pub fn describe(&self) -> String {
         match self {
+            // One curvature for all channels: the wording frames always carried.
+            Response::Gentle(k) if k[0] == k[1] && k[1] == k[2] => {
+                format!("y = x(1 - {c} + {c}x) of full scale", c = k[0])
+            }
             Response::Gentle(k) => format!(
                 "y = x(1 - c + cx) of full scale, c = [{}, {}, {}]",
                 k[0], k[1], k[2]

@@ -7,6 +7,7 @@ use glam::Vec3A;
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, BUILTIN_REFLECTOMETER, RigSpec, parse_rig};
 
 use super::*;
+use crate::render::geometry::CameraPose;
 use crate::world_snapshot::LaserBeam;
 
 const W: u32 = 64;
@@ -144,7 +145,13 @@ fn shadows_darken_the_far_side_of_bumps() {
     let angles = RigAngles::from_world(&rig, &w.axes);
     let ts = ToSample::new(0.0);
     let pose = CameraPose::new(cam, ts);
-    let (lights, _) = lights::lit_lamps(&rig, &w, angles, ts);
+    let (lights, _) = lights::lit_lamps(
+        &rig,
+        &crate::as_built::AsBuilt::nominal(&rig),
+        &w,
+        angles,
+        ts,
+    );
     let shading = |shadows| Shading {
         shadows,
         specular: true,
@@ -470,7 +477,13 @@ fn nothing_radiates_nan_or_negative_at_grazing_light_and_view() {
         let w = world(fixture, &[("lamp1", 1.0)]);
         let ts = ToSample::new(0.0);
         let pose = CameraPose::new(rig.camera("cam1").expect("cam1"), ts);
-        let (lights, _) = lights::lit_lamps(&rig, &w, RigAngles::from_world(&rig, &w.axes), ts);
+        let (lights, _) = lights::lit_lamps(
+            &rig,
+            &crate::as_built::AsBuilt::nominal(&rig),
+            &w,
+            RigAngles::from_world(&rig, &w.axes),
+            ts,
+        );
         let scene = Scene::new(
             &sample,
             lights,
@@ -509,7 +522,13 @@ fn preview_visibility_maps_agree_with_exact_shadow_rays() {
         let w = world(fixture, &[(lamp, 1.0)]);
         let ts = ToSample::new(0.0);
         let pose = CameraPose::new(rig.camera(cam).expect("camera"), ts);
-        let (lights, _) = lights::lit_lamps(&rig, &w, RigAngles::from_world(&rig, &w.axes), ts);
+        let (lights, _) = lights::lit_lamps(
+            &rig,
+            &crate::as_built::AsBuilt::nominal(&rig),
+            &w,
+            RigAngles::from_world(&rig, &w.axes),
+            ts,
+        );
         let shading = Shading {
             shadows: true,
             specular: true,
@@ -697,7 +716,14 @@ fn transport_pass_timings() {
                 let w = world(fixture, &[("lamp4", 1.0)]);
                 let angles = geometry::RigAngles::from_world(&rig, &w.axes);
                 let to = geometry::ToSample::new(angles.turntable_deg);
-                lights::lit_lamps(&rig, &w, angles, to).0
+                lights::lit_lamps(
+                    &rig,
+                    &crate::as_built::AsBuilt::nominal(&rig),
+                    &w,
+                    angles,
+                    to,
+                )
+                .0
             };
             let direct = irradiance::DirectLight {
                 lights: &lights,

@@ -1,0 +1,65 @@
+//! `stagehand evaluate RUN`: every calibration and product of a simulated run measured against
+//! the simulator's ground truth (`as_built.json`, written only for simulated runs with
+//! `[sim.as_built]`), as one JSON report that tests and benchmarks share. This is the only
+//! code that reads ground truth next to processing results; processing itself never does.
+
+mod response;
+
+use std::path::Path;
+
+use serde::Serialize;
+use stagehand_processing::calibration_store::{self, CalibrationKind, calibrations_dir};
+
+pub use response::{ChannelFigures, ResponseFigures, evaluate_response};
+
+/// Errors of `evaluate`.
+#[derive(Debug, thiserror::Error)]
+pub enum EvaluateError {
+    #[error(
+        "run {0} has no as_built.json: evaluate needs a simulated run whose rig sets [sim.as_built]"
+    )]
+    NoTruth(String),
+    #[error("{path}: {message}")]
+    Truth { path: String, message: String },
+    #[error("{0}")]
+    Store(#[from] calibration_store::CalibrationStoreError),
+}
+
+/// The report: one section per calibration evaluated.
+#[derive(Debug, Clone, Serialize)]
+pub struct Report {
+    /// The run evaluated.
+    pub run: String,
+    /// Response calibrations: figures per calibration id.
+    pub response: Vec<ResponseFigures>,
+}
+
+/// Evaluates every calibration of `kinds` stored beside `run_dir` that was computed from it.
+pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
+    let truth_path = run_dir.join(stagehand_dataset::layout::AS_BUILT);
+    let text = std::fs::read_to_string(&truth_path)
+        .map_err(|_| EvaluateError::NoTruth(run_dir.display().to_string()))?;
+    let truth: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| EvaluateError::Truth {
+            path: truth_path.display().to_string(),
+            message: e.to_string(),
+        })?;
+    let run_id = run_dir
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let root = calibrations_dir(run_dir.parent().unwrap_or(Path::new(".")));
+    let mut report = Report {
+        run: run_id.clone(),
+        response: Vec::new(),
+    };
+    for stored in calibration_store::list(&root)?.into_iter().flatten() {
+        if !stored.calibration.inputs.iter().any(|i| i.run_id == run_id) {
+            continue;
+        }
+        if stored.calibration.kind == CalibrationKind::Response {
+            report.response.push(evaluate_response(&stored, &truth)?);
+        }
+    }
+    Ok(report)
+}
