@@ -8,6 +8,17 @@ use serde::{Deserialize, Serialize};
 
 use super::TradeoffError;
 
+/// Why a peer run's JSON is not usable.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PeerParseError {
+    #[error("{0}")]
+    Json(String),
+    #[error("no measured points")]
+    NoPoints,
+    #[error("a point has a non-positive time or a non-finite error")]
+    BadPoint,
+}
+
 /// One spp count rendered by the peer.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PeerPoint {
@@ -62,24 +73,25 @@ impl PeerRun {
             path: path.display().to_string(),
             detail: e.to_string(),
         })?;
-        PeerRun::parse(&text).map_err(|detail| TradeoffError::Peer {
+        PeerRun::parse(&text).map_err(|e| TradeoffError::Peer {
             path: path.display().to_string(),
-            detail,
+            detail: e.to_string(),
         })
     }
 
     /// Parses and checks the JSON text.
-    pub fn parse(text: &str) -> Result<PeerRun, String> {
-        let mut run: PeerRun = serde_json::from_str(text).map_err(|e| e.to_string())?;
+    pub fn parse(text: &str) -> Result<PeerRun, PeerParseError> {
+        let mut run: PeerRun =
+            serde_json::from_str(text).map_err(|e| PeerParseError::Json(e.to_string()))?;
         if run.points.is_empty() {
-            return Err("no measured points".into());
+            return Err(PeerParseError::NoPoints);
         }
         if run
             .points
             .iter()
             .any(|p| !(p.time_s.is_finite() && p.time_s > 0.0 && p.rel_rmse.is_finite()))
         {
-            return Err("a point has a non-positive time or a non-finite error".into());
+            return Err(PeerParseError::BadPoint);
         }
         run.points.sort_by_key(|p| p.spp);
         Ok(run)
@@ -108,6 +120,7 @@ mod tests {
         assert!(
             PeerRun::parse(&empty)
                 .expect_err("empty")
+                .to_string()
                 .contains("no measured")
         );
     }

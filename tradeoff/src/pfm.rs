@@ -6,6 +6,21 @@ use std::path::Path;
 
 use super::TradeoffError;
 
+/// Why PFM bytes do not decode.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PfmError {
+    #[error("truncated PFM header")]
+    TruncatedHeader,
+    #[error("not a colour PFM (magic `{0}`)")]
+    NotColour(String),
+    #[error("bad PFM size `{0}`")]
+    BadSize(String),
+    #[error("bad PFM scale `{0}`")]
+    BadScale(String),
+    #[error("PFM data too short: {len} bytes for {width}×{height}")]
+    TooShort { len: usize, width: u32, height: u32 },
+}
+
 /// Encodes a `width` × `height` RGB image (rows top to bottom) as PFM bytes.
 pub fn encode(width: u32, height: u32, rgb: &[f32]) -> Result<Vec<u8>, TradeoffError> {
     let row = width as usize * 3;
@@ -32,7 +47,7 @@ pub fn write(path: &Path, width: u32, height: u32, rgb: &[f32]) -> Result<(), Tr
 }
 
 /// Decodes PFM bytes (colour, either byte order) into (width, height, rgb top to bottom).
-pub fn decode(bytes: &[u8]) -> Result<(u32, u32, Vec<f32>), String> {
+pub fn decode(bytes: &[u8]) -> Result<(u32, u32, Vec<f32>), PfmError> {
     // Header: three whitespace-separated tokens after "PF", then one whitespace byte.
     let mut tokens = Vec::new();
     let mut pos = 0;
@@ -45,27 +60,31 @@ pub fn decode(bytes: &[u8]) -> Result<(u32, u32, Vec<f32>), String> {
             pos += 1;
         }
         if start == pos {
-            return Err("truncated PFM header".into());
+            return Err(PfmError::TruncatedHeader);
         }
         tokens.push(String::from_utf8_lossy(&bytes[start..pos]).to_string());
     }
     pos += 1;
     if tokens[0] != "PF" {
-        return Err(format!("not a colour PFM (magic `{}`)", tokens[0]));
+        return Err(PfmError::NotColour(tokens[0].clone()));
     }
-    let parse = |t: &str| t.parse::<u32>().map_err(|_| format!("bad PFM size `{t}`"));
+    let parse = |t: &str| {
+        t.parse::<u32>()
+            .map_err(|_| PfmError::BadSize(t.to_string()))
+    };
     let (w, h) = (parse(&tokens[1])?, parse(&tokens[2])?);
     let scale: f32 = tokens[3]
         .parse()
-        .map_err(|_| format!("bad PFM scale `{}`", tokens[3]))?;
+        .map_err(|_| PfmError::BadScale(tokens[3].clone()))?;
     let row = w as usize * 3;
     let n = row * h as usize;
     let data = bytes.get(pos..).unwrap_or(&[]);
     if data.len() < n * 4 {
-        return Err(format!(
-            "PFM data too short: {} bytes for {w}×{h}",
-            data.len()
-        ));
+        return Err(PfmError::TooShort {
+            len: data.len(),
+            width: w,
+            height: h,
+        });
     }
     let mut rgb = vec![0f32; n];
     for (k, chunk) in data.chunks_exact(4).take(n).enumerate() {

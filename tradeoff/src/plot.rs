@@ -55,6 +55,11 @@ fn short(v: f64) -> String {
     }
 }
 
+/// A drawing call of plotters that failed (its error type depends on the backend).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{0}")]
+pub struct DrawError(String);
+
 /// Mitsuba's colour.
 const PEER: RGBColor = RGBColor(188, 189, 34);
 
@@ -65,11 +70,11 @@ struct Data<'a> {
     peer: Option<Vec<(f64, f64, u32)>>,
 }
 
-fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, d: &Data<'_>) -> Result<(), String>
+fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, d: &Data<'_>) -> Result<(), DrawError>
 where
     DB::ErrorType: 'static,
 {
-    let e = |x: DrawingAreaErrorKind<DB::ErrorType>| x.to_string();
+    let e = |x: DrawingAreaErrorKind<DB::ErrorType>| DrawError(x.to_string());
     root.fill(&WHITE).map_err(e)?;
     let finite = |v: f64| v.is_finite() && v > 0.0;
     let mut ts: Vec<f64> = d
