@@ -7,6 +7,7 @@
 //! real-firmware tests run one at a time through `grbl_peer::exclusive`.
 
 mod bad_input;
+mod calibration;
 mod common;
 mod control;
 mod daemon_api;
