@@ -21,7 +21,7 @@ pub enum CalibrateCommand {
         /// The run with the bracket sweep.
         run_dir: PathBuf,
         /// Smoothness weight λ of the fit (relative to the data; see the processing docs).
-        #[arg(long, default_value_t = 10.0)]
+        #[arg(long, default_value_t = 100.0)]
         smoothness: f64,
         /// Print the stored calibration as JSON.
         #[arg(long)]

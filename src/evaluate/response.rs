@@ -1,10 +1,15 @@
-//! Recovered inverse responses against the simulated sensor's: over the DN range the bracket
-//! observed, above six read-noise σ and below saturation, the relative error of exp g after
-//! the one free scale per channel is removed (the median log ratio).
+//! Recovered inverse responses against the simulated sensor's: the relative error of exp g
+//! after the one free scale per channel is removed (the median log ratio), over the DN range
+//! the bracket observed above the noise floor and below saturation. The noise floor is where
+//! the fit's weight reaches 0.1 and where one DN, averaged over a sample's 5×5 window,
+//! resolves the exposure to 1 % (d ln x / dZ ≤ 0.05): below it an 8-bit camera with a strong
+//! response cannot tell exposures 1 % apart at all. The error over the whole observed range
+//! is reported too (`max_rel_error_observed`).
 
 use serde::Serialize;
 use stagehand_processing::calibration_store::{CalibrationKind, StoredCalibration};
 use stagehand_processing::response_calibration::ResponseSet;
+use stagehand_processing::weight::RAMP_FRACTION;
 
 use super::EvaluateError;
 
@@ -13,6 +18,8 @@ use super::EvaluateError;
 pub struct ChannelFigures {
     /// Largest relative error of the inverse response, over the evaluated DN range.
     pub max_rel_error: f64,
+    /// Largest relative error over everything the bracket observed (noise floor included).
+    pub max_rel_error_observed: f64,
     /// RMS relative error over the same range.
     pub rms_rel_error: f64,
     /// The DN range evaluated.
@@ -70,28 +77,47 @@ pub fn evaluate_response(
         let black = stagehand_simulator::render::sensor::black_level_dn(bits as u8);
         let mut channels = Vec::with_capacity(3);
         for (c, g) in fit.channels.iter().enumerate() {
-            let lo = g.observed.lo.max(g.range.lo);
+            // The fit's weight ramps up from 0 at its noise floor (`range.lo`) over 5 % of the
+            // range; below a weight of 0.1 g is set by the smoothness term, not by data.
+            let trusted = g.range.lo + 0.1 * RAMP_FRACTION * (g.range.hi - g.range.lo);
             let hi = g.observed.hi.min(g.range.hi);
-            let zs: Vec<f64> = (0..400)
-                .map(|i| lo + (hi - lo) * f64::from(i) / 399.0)
-                .collect();
-            let mut logs = Vec::with_capacity(zs.len());
-            for &z in &zs {
-                let x = true_exposure(cam, c, z, black, max).ok_or_else(|| bad("no response"))?;
-                logs.push(x.ln() - g.g(z));
+            let ln_x = |z: f64| {
+                true_exposure(cam, c, z, black, max)
+                    .map(f64::ln)
+                    .ok_or_else(|| bad("no response"))
+            };
+            // The first DN at which one DN step moves ln x by at most 0.05.
+            let mut resolved = trusted;
+            while resolved < hi && ln_x(resolved + 1.0)? - ln_x(resolved)? > 0.05 {
+                resolved += 1.0;
             }
-            let mut sorted = logs.clone();
-            sorted.sort_by(f64::total_cmp);
-            let offset = sorted[sorted.len() / 2];
-            let errors: Vec<f64> = logs
-                .iter()
-                .map(|l| ((l - offset).exp() - 1.0).abs())
-                .collect();
+            let lo = g.observed.lo.max(trusted).max(resolved);
+            let errors_over = |lo: f64| -> Result<Vec<f64>, EvaluateError> {
+                let zs: Vec<f64> = (0..400)
+                    .map(|i| lo + (hi - lo) * f64::from(i) / 399.0)
+                    .collect();
+                let logs = zs
+                    .iter()
+                    .map(|&z| Ok(ln_x(z)? - g.g(z)))
+                    .collect::<Result<Vec<f64>, EvaluateError>>()?;
+                let mut sorted = logs.clone();
+                sorted.sort_by(f64::total_cmp);
+                let offset = sorted[sorted.len() / 2];
+                Ok(logs
+                    .iter()
+                    .map(|l| ((l - offset).exp() - 1.0).abs())
+                    .collect())
+            };
+            let errors = errors_over(lo)?;
             let max_err = errors.iter().copied().fold(0.0, f64::max);
+            let observed = errors_over(g.observed.lo.max(g.range.lo))?
+                .into_iter()
+                .fold(0.0, f64::max);
             let rms = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len() as f64).sqrt();
             worst = worst.max(max_err);
             channels.push(ChannelFigures {
                 max_rel_error: max_err,
+                max_rel_error_observed: observed,
                 rms_rel_error: rms,
                 dn_range: [lo, hi],
             });

@@ -11,13 +11,17 @@ use super::common::{run_sequence, small_rig};
 
 const BIN: &str = env!("CARGO_BIN_EXE_stagehand");
 
-/// The small built-in rig drawn as built with `response` style, at `bits` per sample.
+/// The built-in rig at 480×360 (the grazing cam1 sees the chart's patches a few pixels tall,
+/// enough for the 5×5 sample windows) drawn as built with `response` style, at `bits` per
+/// sample.
 fn as_built_rig(response: &str, bits: u8) -> RigSource {
-    let rig = small_rig("lightstage", 160, 120);
-    let text = rig
+    let rig = small_rig("lightstage", 480, 360);
+    let mut text = rig
         .text
-        .replace("bit_depth = 12", &format!("bit_depth = {bits}"))
-        + &format!("\n[sim.as_built]\nseed = 3\nresponse = \"{response}\"\n");
+        .replace("bit_depth = 12", &format!("bit_depth = {bits}"));
+    text.push_str(&format!(
+        "\n[sim.as_built]\nseed = 3\nresponse = \"{response}\"\n"
+    ));
     RigSource::from_text(&text, "test:lightstage+as_built").expect("rig parses")
 }
 
