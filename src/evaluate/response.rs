@@ -10,6 +10,7 @@ use serde::Serialize;
 use stagehand_processing::calibration_store::{CalibrationKind, StoredCalibration};
 use stagehand_processing::response_calibration::ResponseSet;
 use stagehand_processing::weight::RAMP_FRACTION;
+use stagehand_simulator::render::sensor::Response;
 
 use super::EvaluateError;
 
@@ -40,20 +41,19 @@ pub struct ResponseFigures {
 /// The true inverse response x(z) (fraction of the full well) of channel `c` of a camera
 /// whose truth is `cam` (as_built.json's camera entry).
 fn true_exposure(cam: &serde_json::Value, c: usize, z: f64, black: f64, max: f64) -> Option<f64> {
-    let y = ((z - black) / max).clamp(0.0, 1.0);
     let r = &cam["response"];
-    match r["kind"].as_str()? {
-        "gamma" => Some(y.powf(r["gamma"][c].as_f64()?)),
-        "gentle" => {
-            let k = r["curvature"][c].as_f64()?;
-            Some(if k.abs() < 1e-12 {
-                y
-            } else {
-                (-(1.0 - k) + ((1.0 - k).powi(2) + 4.0 * k * y).sqrt()) / (2.0 * k)
-            })
-        }
-        _ => None,
-    }
+    let channels = |key: &str| -> Option<[f32; 3]> {
+        let v = &r[key];
+        Some([0, 1, 2].map(|i| v[i].as_f64().unwrap_or(f64::NAN) as f32))
+            .filter(|a| a.iter().all(|x| x.is_finite()))
+    };
+    // The simulator's own sensor model, rebuilt from the recorded truth.
+    let response = match r["kind"].as_str()? {
+        "gamma" => Response::Gamma(channels("gamma")?),
+        "gentle" => Response::Gentle(channels("curvature")?),
+        _ => return None,
+    };
+    Some(response.invert(c, (z - black) / max))
 }
 
 /// Evaluates one stored response calibration against `truth` (as_built.json).
