@@ -26,14 +26,35 @@ const RELAY_PORT: &str = "/dev/serial/by-id/usb-Numato_Systems_Pvt._Ltd._Numato_
 /// The axes (and laser) on the GRBL controller: any of them may be the one that notices.
 const GRBL_AXES: &[&str] = &["turntable", "light_arc", "laser_tilt", "laser"];
 
-/// The lab rig with its cameras shrunk so the frames render fast.
+/// How much faster than the lab's physics the test rig runs: speeds ×K, accelerations ×K²,
+/// settle and warm-up times ÷K. Every timeout the drivers derive from the physics scales with
+/// it, the emulators take their rates from the same file, and frames (all shot at rest) do not
+/// change, so the tours keep their meaning in a quarter of the wall time.
+const SPEED_UP: f64 = 8.0;
+
+/// The lab rig with its cameras shrunk so the frames render fast, and its physics sped up
+/// [`SPEED_UP`] times.
 fn lab_rig(w: u32, h: u32) -> RigSource {
     let text =
         std::fs::read_to_string(root().join("devices/rigs/lightstage-lab.toml")).expect("lab rig");
     let text = text
         .replace("width = 1024", &format!("width = {w}"))
         .replace("height = 768", &format!("height = {h}"));
-    RigSource::from_text(&text, "test:lightstage-lab").expect("lab rig parses")
+    let scaled: Vec<String> = text
+        .lines()
+        .map(|line| {
+            let factor = match line.split_once(" = ").map(|(k, _)| k) {
+                Some("speed_deg_s" | "homing_speed_deg_s") => SPEED_UP,
+                Some("accel_deg_s2") => SPEED_UP * SPEED_UP,
+                Some("settle_s" | "warmup_s") => 1.0 / SPEED_UP,
+                _ => return line.to_string(),
+            };
+            let (key, value) = line.split_once(" = ").expect("matched above");
+            let value: f64 = value.trim().parse().expect("a number in the lab rig");
+            format!("{key} = {:?}", value * factor)
+        })
+        .collect();
+    RigSource::from_text(&scaled.join("\n"), "test:lightstage-lab").expect("lab rig parses")
 }
 
 /// A short tour: homing, moves both ways (backlash take-up), two lamps, an HDR bracket and a
