@@ -96,7 +96,10 @@ impl IrBridgeCart {
 
     fn over(link: SerialLink, channel: u8, output: Output, step: u8) -> DeviceResult<Self> {
         let bad = |message: String| {
-            DeviceError::new(link.device().to_string(), DeviceErrorKind::Other { message })
+            DeviceError::new(
+                link.device().to_string(),
+                DeviceErrorKind::Other { message },
+            )
         };
         if !(1..=4).contains(&channel) {
             return Err(bad(format!(

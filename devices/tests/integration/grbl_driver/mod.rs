@@ -1,17 +1,27 @@
 //! Drives `GrblController` (and its axis and laser drivers) against a small scripted fake
-//! GRBL 1.1 controller on a pty pair, and snapshots the exact bytes the driver sends.
+//! GRBL 1.1 controller, and snapshots the exact bytes the driver sends.
+//!
+//! The fake is a tokio task on the other end of a `tokio::io::duplex` stream, and the tests run
+//! on tokio's paused clock: the fake's motion, the driver's polls, timeouts and keepalive all
+//! happen at exact virtual instants, so no test races the wall clock and timings are asserted
+//! exactly. One smoke test runs the same fake over a real pty (`streams.rs`).
 
-use std::os::fd::AsRawFd;
-use std::sync::atomic::{AtomicBool, Ordering};
+mod faults;
+mod motion;
+mod streams;
+
 use std::sync::{Arc, Mutex};
-use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use stagehand_devices::axis::{AxisDriver, AxisHandle};
-use stagehand_devices::grbl::{GrblAxis, GrblController, GrblLaser};
-use stagehand_devices::laser::LaserDriver;
+use stagehand_devices::grbl::GrblController;
 use stagehand_devices::rig::{AxisRole, AxisSpec, Backend, GRBL_BAUD};
-use stagehand_devices::{DeviceError, DeviceErrorKind};
+use tokio::task::JoinHandle;
+use tokio::time::Instant;
+
+use crate::fake_port::{DeviceEnd, Port, duplex_port, pty_port};
+
+/// What a duplex fake's port is called in errors.
+const FAKE_PORT: &str = "fake:grbl";
 
 const STEPS: f64 = 3200.0 / 360.0 * 16.0;
 
@@ -31,8 +41,6 @@ struct Script {
     garbage_on_status: bool,
     /// Stop answering anything.
     mute: bool,
-    /// Close the master end (the port disappears).
-    unplug: bool,
 }
 
 impl Default for Script {
@@ -46,7 +54,6 @@ impl Default for Script {
             reject_next: None,
             garbage_on_status: false,
             mute: false,
-            unplug: false,
         }
     }
 }
@@ -112,39 +119,69 @@ impl Machine {
     }
 }
 
+/// A running fake controller and what the test needs to drive and inspect it.
 struct Fake {
     script: Arc<Mutex<Script>>,
     seen: Arc<Mutex<Seen>>,
-    quit: Arc<AtomicBool>,
-    thread: Option<JoinHandle<()>>,
+    task: JoinHandle<()>,
+    /// The port as errors name it: [`FAKE_PORT`], or the pty's path.
     path: String,
-    _slave: serial2::SerialPort,
+    /// The duplex port (`None` on a pty).
+    port: Option<Port>,
+    /// The pty's slave end, kept open (`None` on a duplex port).
+    _slave: Option<serial2::SerialPort>,
 }
 
 impl Fake {
+    /// A fake controller on a duplex port, for tests on the paused clock.
     fn start(script: Script) -> Fake {
-        let (mut master, slave) = serial2::SerialPort::pair().unwrap();
-        let path = std::fs::read_link(format!("/proc/self/fd/{}", slave.as_raw_fd()))
-            .unwrap()
-            .to_str()
-            .unwrap()
-            .to_string();
-        master.set_read_timeout(Duration::from_millis(5)).unwrap();
+        let (port, device) = duplex_port();
+        Self::serve(script, device, FAKE_PORT.into(), Some(port), None)
+    }
+
+    /// A fake controller on a real pty (the smoke test of the serial path).
+    fn start_on_pty(script: Script) -> Fake {
+        let (path, device, slave) = pty_port();
+        Self::serve(script, device, path, None, Some(slave))
+    }
+
+    fn serve(
+        script: Script,
+        device: DeviceEnd,
+        path: String,
+        port: Option<Port>,
+        slave: Option<serial2::SerialPort>,
+    ) -> Fake {
         let script = Arc::new(Mutex::new(script));
         let seen = Arc::new(Mutex::new(Seen::default()));
-        let quit = Arc::new(AtomicBool::new(false));
-        let thread = {
-            let (script, seen, quit) = (script.clone(), seen.clone(), quit.clone());
-            std::thread::spawn(move || run_fake(master, script, seen, quit))
-        };
+        let task = tokio::spawn(run_fake(device, script.clone(), seen.clone()));
         Fake {
             script,
             seen,
-            quit,
-            thread: Some(thread),
+            task,
             path,
+            port,
             _slave: slave,
         }
+    }
+
+    /// A controller for X and Y on the fake's port, keepalive off (tests that want it switch
+    /// it on).
+    fn controller(&self) -> Arc<GrblController> {
+        let axes = vec![axis("turntable", "X"), axis("arc", "Y")];
+        let ctl = match &self.port {
+            Some(port) => {
+                GrblController::with_transport("turntable", FAKE_PORT, port.opener(), axes)
+            }
+            None => GrblController::new("turntable", &self.path, GRBL_BAUD, axes),
+        };
+        ctl.set_keepalive(false);
+        ctl
+    }
+
+    /// Pulls the cable (duplex ports only).
+    fn unplug(&self) {
+        self.port.as_ref().expect("a duplex port").unplug();
     }
 
     fn script(&self) -> std::sync::MutexGuard<'_, Script> {
@@ -167,19 +204,20 @@ impl Fake {
 
 impl Drop for Fake {
     fn drop(&mut self) {
-        self.quit.store(true, Ordering::Relaxed);
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
-        }
+        self.task.abort();
     }
 }
 
-fn run_fake(
-    master: serial2::SerialPort,
-    script: Arc<Mutex<Script>>,
-    seen: Arc<Mutex<Seen>>,
-    quit: Arc<AtomicBool>,
-) {
+/// Waits until `at`, or forever.
+async fn until(at: Option<Instant>) {
+    match at {
+        Some(at) => tokio::time::sleep_until(at).await,
+        None => std::future::pending().await,
+    }
+}
+
+/// The fake controller: answers what the driver sends, raises a scheduled alarm on time.
+async fn run_fake(mut port: DeviceEnd, script: Arc<Mutex<Script>>, seen: Arc<Mutex<Seen>>) {
     let mut m = Machine {
         base: [5.0, 7.0, 0.0],
         segs: Vec::new(),
@@ -189,31 +227,27 @@ fn run_fake(
     };
     let mut line = Vec::new();
     let mut buf = [0u8; 256];
-    let send = |text: &str| {
-        let _ = master.write_all(text.as_bytes());
-    };
-    while !quit.load(Ordering::Relaxed) {
-        let now = Instant::now();
-        if script.lock().unwrap().unplug {
-            return;
-        }
-        if let Some((at, code)) = m.alarm_at
-            && now >= at
-        {
-            m.freeze(now);
-            m.alarm = true;
-            m.alarm_at = None;
-            send(&format!("ALARM:{code}\r\n"));
-        }
-        let n = match master.read(&mut buf) {
-            Ok(n) => n,
-            Err(e) if e.kind() == std::io::ErrorKind::TimedOut => continue,
-            Err(_) => return,
+    loop {
+        let n = tokio::select! {
+            n = port.read(&mut buf) => match n {
+                Some(n) => n,
+                None => return,
+            },
+            () = until(m.alarm_at.map(|(at, _)| at)) => {
+                if let Some((_, code)) = m.alarm_at.take() {
+                    m.freeze(Instant::now());
+                    m.alarm = true;
+                    port.write(format!("ALARM:{code}\r\n").as_bytes()).await;
+                }
+                continue;
+            }
         };
         seen.lock().unwrap().bytes.extend_from_slice(&buf[..n]);
         if script.lock().unwrap().mute {
             continue;
         }
+        let mut out = String::new();
+        let mut send = |text: &str| out.push_str(text);
         for &b in &buf[..n] {
             let now = Instant::now();
             match b {
@@ -279,6 +313,9 @@ fn run_fake(
                 b'\r' => {}
                 _ => line.push(b),
             }
+        }
+        if !out.is_empty() {
+            port.write(out.as_bytes()).await;
         }
     }
 }
@@ -388,18 +425,6 @@ fn axis(id: &str, letter: &str) -> AxisSpec {
     }
 }
 
-/// A controller for X and Y on the fake's port, keepalive off (tests that want it switch it on).
-fn controller(fake: &Fake) -> Arc<GrblController> {
-    let ctl = GrblController::new(
-        "turntable",
-        &fake.path,
-        GRBL_BAUD,
-        vec![axis("turntable", "X"), axis("arc", "Y")],
-    );
-    ctl.set_keepalive(false);
-    ctl
-}
-
 /// Positions read back carry GRBL's 3-decimal print of a machine coordinate whose home is a
 /// whole number of steps (−0.998439…), so they are within half a thousandth of a degree.
 fn assert_near(got: f64, want: f64) {
@@ -426,382 +451,4 @@ fn show(bytes: &[u8]) -> String {
         out += &format!("{line}(unterminated)\n");
     }
     out
-}
-
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn byte_streams_of_handshake_home_move_stop_and_laser() {
-    let fake = Fake::start(Script::default());
-    let ctl = controller(&fake);
-    let mut x = GrblAxis::new(ctl.clone(), &axis("turntable", "X")).unwrap();
-    let mut laser = GrblLaser::new(ctl.clone(), "laser");
-
-    // The handshake (reset, banner, `$I`, `$$`, `?`), then the position's own `?`. Machine 5
-    // is 5.998° before homing: the map puts 0° at machine −`$27` in whole steps (−0.998),
-    // where homing ends.
-    assert_near(x.position().await.unwrap(), 5.998);
-    insta::assert_snapshot!(show(&fake.take_bytes()), @r"
-    <0x18>
-    $I\n
-    $$\n
-    <?>
-    <?>
-    ");
-
-    assert_near(x.home().await.unwrap(), 0.0);
-    insta::assert_snapshot!(show(&fake.take_bytes()), @r"
-    $HX\n
-    <?>
-    ");
-
-    assert_near(x.move_to(12.5).await.unwrap(), 12.5);
-    insta::assert_snapshot!(show(&fake.take_bytes()), @r"
-    G53 G0 X11.502\n
-    <?>
-    ");
-
-    // Nothing moving: a stop only reads the position (a feed hold and reset are for motion).
-    assert_near(x.stop().await.unwrap(), 12.5);
-    insta::assert_snapshot!(show(&fake.take_bytes()), @r"
-    <?>
-    ");
-
-    laser.set_emission(true, 520).await.unwrap();
-    assert!(fake.laser_on());
-    laser.set_emission(false, 520).await.unwrap();
-    assert!(!fake.laser_on());
-    insta::assert_snapshot!(show(&fake.take_bytes()), @r"
-    M3 S1000\n
-    <?>
-    M5\n
-    <?>
-    ");
-}
-
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn homes_moves_and_reports_positions_through_the_axis_handle() {
-    let fake = Fake::start(Script {
-        speed: 200.0,
-        ..Script::default()
-    });
-    let ctl = controller(&fake);
-    ctl.set_keepalive(true);
-    let spec = axis("turntable", "X");
-    let mut x = GrblAxis::new(ctl.clone(), &spec).unwrap();
-    let e = x.move_to(10.0).await.unwrap_err();
-    assert!(
-        matches!(&e, DeviceError { device, kind: DeviceErrorKind::NotHomed } if device == "turntable"),
-        "{e}"
-    );
-    assert!(!ctl.is_homed('X').await);
-
-    let handle = AxisHandle::spawn(spec, x);
-    assert_near(handle.home().await.unwrap(), 0.0);
-    assert!(ctl.is_homed('X').await && !ctl.is_homed('Y').await);
-    let t0 = Instant::now();
-    let p = handle.move_to(40.0).await.unwrap();
-    assert!((p - 40.0).abs() < 1e-3, "{p}");
-    assert!(
-        t0.elapsed() >= Duration::from_millis(150),
-        "waited for the move to finish, not just for `ok`"
-    );
-    assert!((handle.position().await.unwrap() - 40.0).abs() < 1e-3);
-    let p = handle.move_to(12.345).await.unwrap();
-    assert!((p - 12.345).abs() < 1e-3, "{p}");
-}
-
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn two_axes_queue_their_moves_on_one_controller() {
-    let fake = Fake::start(Script {
-        speed: 300.0,
-        ..Script::default()
-    });
-    let ctl = controller(&fake);
-    let mut x = GrblAxis::new(ctl.clone(), &axis("turntable", "X")).unwrap();
-    let mut y = GrblAxis::new(ctl.clone(), &axis("arc", "Y")).unwrap();
-    x.home().await.unwrap();
-    y.home().await.unwrap();
-    let (px, py) = tokio::join!(x.move_to(60.0), y.move_to(90.0));
-    assert!((px.unwrap() - 60.0).abs() < 1e-3);
-    assert!((py.unwrap() - 90.0).abs() < 1e-3);
-    let s = ctl.status("test").await.unwrap();
-    // The status is in machine coordinates: 60° and 90° are machine 59.002 and 89.002 (home
-    // at −0.998, the pull-off of 1 in whole steps).
-    assert_eq!(&s.pos[..2], &[59.002, 89.002]);
-}
-
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_wrong_banner_is_the_wrong_firmware() {
-    let fake = Fake::start(Script {
-        banner: "Grbl 0.9j ['$' for help]".into(),
-        ..Script::default()
-    });
-    let mut x = GrblAxis::new(controller(&fake), &axis("turntable", "X")).unwrap();
-    let e = x.position().await.unwrap_err();
-    let text = e.to_string();
-    assert!(
-        matches!(
-            e,
-            DeviceError {
-                kind: DeviceErrorKind::Protocol { .. },
-                ..
-            }
-        ),
-        "{text}"
-    );
-    assert!(
-        text.contains("wrong firmware banner `Grbl 0.9j") && text.contains("expected GRBL 1.1"),
-        "{text}"
-    );
-    assert!(
-        text.contains("turntable") && text.contains(&fake.path),
-        "{text}"
-    );
-}
-
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn wrong_steps_per_degree_say_which_setting_to_change() {
-    let fake = Fake::start(Script {
-        steps: [STEPS, 80.0, 250.0],
-        ..Script::default()
-    });
-    let mut y = GrblAxis::new(controller(&fake), &axis("arc", "Y")).unwrap();
-    let e = y.home().await.unwrap_err();
-    let text = e.to_string();
-    assert!(
-        matches!(
-            e,
-            DeviceError {
-                kind: DeviceErrorKind::Misconfigured { .. },
-                ..
-            }
-        ),
-        "{text}"
-    );
-    assert!(text.contains("`$101=142.222`"), "{text}");
-    assert!(text.starts_with("arc:"), "{text}");
-}
-
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn an_error_reply_is_rejected_with_its_meaning() {
-    let fake = Fake::start(Script::default());
-    let ctl = controller(&fake);
-    let mut laser = GrblLaser::new(ctl.clone(), "laser");
-    // In Alarm after connecting: G-code is locked out.
-    let e = laser.set_emission(true, 520).await.unwrap_err();
-    assert_eq!(
-        e,
-        DeviceError::new(
-            "laser",
-            DeviceErrorKind::Rejected {
-                command: "M3 S1000".into(),
-                code: 9,
-                meaning: "G-code lock".into()
-            }
-        )
-    );
-    let mut x = GrblAxis::new(ctl.clone(), &axis("turntable", "X")).unwrap();
-    x.home().await.unwrap();
-    fake.script().reject_next = Some(20);
-    let e = x.move_to(3.0).await.unwrap_err();
-    assert!(
-        matches!(&e, DeviceError { kind: DeviceErrorKind::Rejected { code: 20, command, .. }, .. } if command == "G53 G0 X2.002"),
-        "{e}"
-    );
-    // The flow counter was freed by the error: the next line goes through.
-    assert_near(x.move_to(3.0).await.unwrap(), 3.0);
-}
-
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn an_alarm_during_a_move_loses_the_homing() {
-    let fake = Fake::start(Script {
-        speed: 200.0,
-        ..Script::default()
-    });
-    let ctl = controller(&fake);
-    let mut x = GrblAxis::new(ctl.clone(), &axis("turntable", "X")).unwrap();
-    x.home().await.unwrap();
-    fake.script().alarm_on_move = Some(1);
-    let e = x.move_to(100.0).await.unwrap_err();
-    assert!(
-        matches!(
-            e,
-            DeviceError {
-                kind: DeviceErrorKind::HardLimit { .. },
-                ..
-            }
-        ),
-        "{e}"
-    );
-    assert!(e.is_recoverable());
-    assert!(!ctl.is_homed('X').await);
-    let e = x.move_to(10.0).await.unwrap_err();
-    assert!(
-        matches!(
-            e,
-            DeviceError {
-                kind: DeviceErrorKind::NotHomed,
-                ..
-            }
-        ),
-        "{e}"
-    );
-
-    x.home().await.unwrap();
-    fake.script().alarm_on_move = Some(2);
-    let e = x.move_to(100.0).await.unwrap_err();
-    assert!(
-        matches!(&e, DeviceError { kind: DeviceErrorKind::Alarm { code: 2, meaning, .. }, .. } if meaning.contains("Soft limit")),
-        "{e}"
-    );
-    x.home().await.unwrap();
-    assert_near(x.move_to(10.0).await.unwrap(), 10.0);
-}
-
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn garbage_resynchronises_and_the_position_is_unverified_afterwards() {
-    let fake = Fake::start(Script::default());
-    let ctl = controller(&fake);
-    let mut x = GrblAxis::new(ctl.clone(), &axis("turntable", "X")).unwrap();
-    x.home().await.unwrap();
-    x.move_to(20.0).await.unwrap();
-    assert_eq!(fake.resets(), 1);
-    fake.script().garbage_on_status = true;
-    let e = x.position().await.unwrap_err();
-    assert!(
-        matches!(
-            e,
-            DeviceError {
-                kind: DeviceErrorKind::Protocol { .. },
-                ..
-            }
-        ),
-        "{e}"
-    );
-    assert!(e.to_string().contains("line noise"), "{e}");
-    // The next request reconnects with a handshake (soft reset) ...
-    assert_near(x.position().await.unwrap(), 20.0);
-    assert_eq!(fake.resets(), 2);
-    // ... and refuses to move at a position it has not verified.
-    let e = x.move_to(30.0).await.unwrap_err();
-    assert!(
-        matches!(
-            e,
-            DeviceError {
-                kind: DeviceErrorKind::NotHomed,
-                ..
-            }
-        ),
-        "{e}"
-    );
-    x.home().await.unwrap();
-    assert_near(x.move_to(30.0).await.unwrap(), 30.0);
-}
-
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_mute_controller_times_out_and_an_unplugged_port_is_disconnected() {
-    let fake = Fake::start(Script::default());
-    let ctl = controller(&fake);
-    let mut x = GrblAxis::new(ctl.clone(), &axis("turntable", "X")).unwrap();
-    x.position().await.unwrap();
-    fake.script().mute = true;
-    // A timeout, not a hang (how quickly it comes is the driver's timeout, not a test bound).
-    let e = x.position().await.unwrap_err();
-    assert!(
-        matches!(
-            e,
-            DeviceError {
-                kind: DeviceErrorKind::Timeout { .. },
-                ..
-            }
-        ),
-        "{e}"
-    );
-    // Reconnecting to a mute controller: no banner.
-    let e = x.position().await.unwrap_err();
-    assert!(
-        matches!(&e, DeviceError { kind: DeviceErrorKind::Timeout { request, .. }, .. } if request.contains("banner")),
-        "{e}"
-    );
-    fake.script().unplug = true;
-    std::thread::sleep(Duration::from_millis(50));
-    let e = x.position().await.unwrap_err();
-    assert!(e.is_recoverable(), "{e}");
-    assert!(
-        matches!(
-            e,
-            DeviceError {
-                kind: DeviceErrorKind::Disconnected { .. },
-                ..
-            } | DeviceError {
-                kind: DeviceErrorKind::PortUnavailable { .. },
-                ..
-            } | DeviceError {
-                kind: DeviceErrorKind::Timeout { .. },
-                ..
-            }
-        ),
-        "{e}"
-    );
-    assert!(e.to_string().contains("turntable"), "{e}");
-}
-
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn stop_during_a_move_keeps_the_position() {
-    let fake = Fake::start(Script {
-        speed: 100.0,
-        ..Script::default()
-    });
-    let ctl = controller(&fake);
-    let mut x = GrblAxis::new(ctl.clone(), &axis("turntable", "X")).unwrap();
-    x.home().await.unwrap();
-    let mut mover = GrblAxis::new(ctl.clone(), &axis("turntable", "X")).unwrap();
-    let moving = tokio::spawn(async move { mover.move_to(100.0).await });
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    let p = x.stop().await.unwrap();
-    assert!(p > 5.0 && p < 95.0, "stopped on the way: {p}");
-    let e = moving.await.unwrap().unwrap_err();
-    assert!(e.to_string().contains("interrupted"), "{e}");
-    // The reset came in Hold:0: still homed, the position is where it stopped.
-    assert!(ctl.is_homed('X').await);
-    assert_near(x.position().await.unwrap(), p);
-    assert!((x.move_to(p + 5.0).await.unwrap() - (p + 5.0)).abs() < 1e-3);
-}
-
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn the_keepalive_polls_only_while_idle_and_enabled() {
-    let fake = Fake::start(Script::default());
-    let ctl = controller(&fake);
-    ctl.set_keepalive(true);
-    let mut x = GrblAxis::new(ctl.clone(), &axis("turntable", "X")).unwrap();
-    x.position().await.unwrap();
-    fake.take_bytes();
-    tokio::time::sleep(Duration::from_millis(1300)).await;
-    let polls = fake.take_bytes().iter().filter(|b| **b == b'?').count();
-    assert!((2..=3).contains(&polls), "{polls} keepalive polls in 1.3 s");
-    ctl.set_keepalive(false);
-    tokio::time::sleep(Duration::from_millis(700)).await;
-    assert!(fake.take_bytes().is_empty());
-}
-
-#[test]
-fn an_axis_needs_a_letter_the_controller_serves() {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    rt.block_on(async {
-        let ctl = GrblController::new("t", "/dev/null", GRBL_BAUD, vec![axis("t", "X")]);
-        let e = GrblAxis::new(ctl.clone(), &axis("tilt", "Q"))
-            .err()
-            .unwrap();
-        assert!(e.to_string().contains("controller_axis"), "{e}");
-        let e = GrblAxis::new(ctl.clone(), &axis("tilt", "Z"))
-            .err()
-            .unwrap();
-        assert!(e.to_string().starts_with("tilt:"), "{e}");
-        assert_eq!(
-            GrblAxis::new(ctl, &axis("t", "x")).ok().map(|a| a.letter()),
-            Some('X')
-        );
-    });
 }
