@@ -2,23 +2,62 @@
 //! `/dev/ttyACM0` or an emulator's pty), write bytes, read lines or up to a marker, every read
 //! bounded by a timeout, every failure a typed error naming the device and the port.
 //!
+//! A link can also run over any async byte stream ([`Transport`]) that a [`TransportOpener`]
+//! hands it on each (re)open: one end of `tokio::io::duplex`, so a test's fake device runs as a
+//! task on tokio's (paused) clock, or a network serial bridge. Everything above the bytes is
+//! the same code either way.
+//!
 //! A link that fails is closed; the driver reopens it (with its protocol's handshake) on its
 //! next request, which is how a port that disappears and comes back is recovered.
 
+use std::pin::Pin;
+use std::task::{Context, Poll, Waker};
+
 use serial2_tokio::SerialPort;
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadBuf};
 
 use crate::clock::duration_s;
 use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 
+/// An async byte stream a link can run over instead of a serial port.
+pub trait Transport: AsyncRead + AsyncWrite + Unpin + Send {}
+
+impl<T: AsyncRead + AsyncWrite + Unpin + Send> Transport for T {}
+
+/// Opens a fresh stream each time the link opens (first use, and after every failure); an
+/// error is reported as `PortUnavailable`, like a serial port path that does not open.
+pub type TransportOpener = Box<dyn FnMut() -> std::io::Result<Box<dyn Transport>> + Send>;
+
 /// Longest line a device may send before the bytes are taken for garbage.
 const MAX_LINE: usize = 1024;
+
+/// What a link opens: a serial port by path, or whatever stream an opener hands it.
+enum Endpoint {
+    Serial { baud: u32 },
+    Stream(TransportOpener),
+}
+
+/// An open link.
+enum Port {
+    Serial(SerialPort),
+    Stream(Box<dyn Transport>),
+}
+
+impl Port {
+    fn io(&mut self) -> &mut dyn Transport {
+        match self {
+            Port::Serial(p) => p,
+            Port::Stream(s) => s.as_mut(),
+        }
+    }
+}
 
 /// A serial port owned by one driver; closed until [`SerialLink::open`] succeeds.
 pub struct SerialLink {
     device: String,
     path: String,
-    baud: u32,
-    port: Option<SerialPort>,
+    endpoint: Endpoint,
+    port: Option<Port>,
     /// Bytes read but not yet returned as a line.
     pending: Vec<u8>,
 }
@@ -26,10 +65,20 @@ pub struct SerialLink {
 impl SerialLink {
     /// A link to `path` at `baud`, not yet open.
     pub fn new(device: &str, path: &str, baud: u32) -> Self {
+        Self::with_endpoint(device, path, Endpoint::Serial { baud })
+    }
+
+    /// A link over the streams `open` hands it (one per open), named `name` in errors where a
+    /// serial link names its path; not yet open.
+    pub fn with_transport(device: &str, name: &str, open: TransportOpener) -> Self {
+        Self::with_endpoint(device, name, Endpoint::Stream(open))
+    }
+
+    fn with_endpoint(device: &str, path: &str, endpoint: Endpoint) -> Self {
         Self {
             device: device.to_string(),
             path: path.to_string(),
-            baud,
+            endpoint,
             port: None,
             pending: Vec::new(),
         }
@@ -47,10 +96,22 @@ impl SerialLink {
         self.port.is_some()
     }
 
-    /// Opens the port (raw, 8N1 at the link's baud rate) and discards anything stale in it.
+    /// Opens the port (raw, 8N1 at the link's baud rate) and discards anything stale in it;
+    /// a stream link asks its opener for a new stream instead.
     pub fn open(&mut self) -> DeviceResult<()> {
         self.close();
-        let port = SerialPort::open(&self.path, self.baud).map_err(|e| {
+        let opened = match &mut self.endpoint {
+            Endpoint::Serial { baud } => SerialPort::open(&self.path, *baud).map(|port| {
+                // A pty or a USB CDC port may hold bytes from before; they belong to nobody.
+                let _ = port.discard_buffers();
+                Port::Serial(port)
+            }),
+            Endpoint::Stream(open) => open().map(|mut stream| {
+                drain_ready(stream.as_mut());
+                Port::Stream(stream)
+            }),
+        };
+        let port = opened.map_err(|e| {
             DeviceError::new(
                 self.device.clone(),
                 DeviceErrorKind::PortUnavailable {
@@ -59,8 +120,6 @@ impl SerialLink {
                 },
             )
         })?;
-        // A pty or a USB CDC port may hold bytes from before; they belong to nobody.
-        let _ = port.discard_buffers();
         self.port = Some(port);
         Ok(())
     }
@@ -95,23 +154,27 @@ impl SerialLink {
         )
     }
 
-    fn port(&mut self) -> DeviceResult<&SerialPort> {
-        if self.port.is_none() {
-            return Err(DeviceError::new(
+    fn io(&mut self) -> DeviceResult<&mut dyn Transport> {
+        match &mut self.port {
+            Some(port) => Ok(port.io()),
+            None => Err(DeviceError::new(
                 self.device.clone(),
                 DeviceErrorKind::Disconnected {
                     port: self.path.clone(),
                     reason: "the port is not open".into(),
                 },
-            ));
+            )),
         }
-        Ok(self.port.as_ref().expect("checked above"))
     }
 
     /// Writes every byte, or fails with `Disconnected` (closing the link).
     pub async fn write(&mut self, bytes: &[u8], timeout_s: f64) -> DeviceResult<()> {
-        let port = self.port()?;
-        match tokio::time::timeout(duration_s(timeout_s), port.write_all(bytes)).await {
+        let io = self.io()?;
+        let write = async {
+            io.write_all(bytes).await?;
+            io.flush().await
+        };
+        match tokio::time::timeout(duration_s(timeout_s), write).await {
             Ok(Ok(())) => Ok(()),
             Ok(Err(e)) => Err(self.lost(format!("write failed: {e}"))),
             Err(_) => Err(self.lost(format!(
@@ -175,8 +238,12 @@ impl SerialLink {
     /// Drops every byte read so far and whatever the OS holds (resynchronising after garbage).
     pub fn discard_input(&mut self) {
         self.pending.clear();
-        if let Some(p) = &self.port {
-            let _ = p.discard_input_buffer();
+        match &mut self.port {
+            Some(Port::Serial(p)) => {
+                let _ = p.discard_input_buffer();
+            }
+            Some(Port::Stream(s)) => drain_ready(s.as_mut()),
+            None => {}
         }
     }
 
@@ -206,8 +273,8 @@ impl SerialLink {
         timeout_s: f64,
     ) -> DeviceResult<()> {
         let mut buf = [0u8; 256];
-        let port = self.port()?;
-        match tokio::time::timeout_at(deadline, port.read(&mut buf)).await {
+        let io = self.io()?;
+        match tokio::time::timeout_at(deadline, io.read(&mut buf)).await {
             Ok(Ok(0)) => Err(self.lost("the port closed (end of file)")),
             Ok(Ok(n)) => {
                 self.pending.extend_from_slice(&buf[..n]);
@@ -221,6 +288,20 @@ impl SerialLink {
                     timeout_s,
                 },
             )),
+        }
+    }
+}
+
+/// Drops the bytes a stream has ready now without waiting for more: a stream's counterpart of
+/// discarding a serial port's input buffer.
+fn drain_ready(io: &mut dyn Transport) {
+    let mut cx = Context::from_waker(Waker::noop());
+    let mut buf = [0u8; 256];
+    loop {
+        let mut chunk = ReadBuf::new(&mut buf);
+        match Pin::new(&mut *io).poll_read(&mut cx, &mut chunk) {
+            Poll::Ready(Ok(())) if !chunk.filled().is_empty() => {}
+            _ => break,
         }
     }
 }
@@ -303,6 +384,74 @@ mod tests {
                     ..
                 }
             ),
+            "{e}"
+        );
+    }
+
+    /// A link over duplex streams, each new one handed to the test through `ends`; `refuse`
+    /// makes the opener fail (a port that is gone).
+    fn stream_link(
+        refuse: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    ) -> (
+        SerialLink,
+        tokio::sync::mpsc::UnboundedReceiver<tokio::io::DuplexStream>,
+    ) {
+        let (tx, ends) = tokio::sync::mpsc::unbounded_channel();
+        let open: TransportOpener = Box::new(move || {
+            if refuse.load(std::sync::atomic::Ordering::Relaxed) {
+                return Err(std::io::Error::new(
+                    std::io::ErrorKind::NotFound,
+                    "no such device",
+                ));
+            }
+            let (ours, theirs) = tokio::io::duplex(4096);
+            tx.send(theirs)
+                .map_err(|_| std::io::Error::other("nobody serves this port"))?;
+            Ok(Box::new(ours) as Box<dyn Transport>)
+        });
+        (SerialLink::with_transport("grbl", "fake:grbl", open), ends)
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_stream_link_reads_discards_times_out_on_the_virtual_clock_and_reopens() {
+        let refuse = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let (mut link, mut ends) = stream_link(refuse.clone());
+        link.open().unwrap();
+        let mut dev = ends.recv().await.unwrap();
+        dev.write_all(b"stale\r\n").await.unwrap();
+        link.discard_input();
+        dev.write_all(b"\r\nGrbl 1.1h ['$' for help]\r\nok\r\n")
+            .await
+            .unwrap();
+        assert_eq!(
+            link.read_line(b"\r\n", "banner", 1.0).await.unwrap(),
+            "Grbl 1.1h ['$' for help]"
+        );
+        assert_eq!(link.read_line(b"\r\n", "x", 1.0).await.unwrap(), "ok");
+        // Nothing comes: the timeout is exactly the one asked for, on the paused clock.
+        let t0 = tokio::time::Instant::now();
+        let e = link.read_line(b"\n", "status", 0.25).await.unwrap_err();
+        assert!(matches!(e.kind, DeviceErrorKind::Timeout { .. }), "{e}");
+        assert_eq!(t0.elapsed(), std::time::Duration::from_millis(250));
+        link.write(b"?", 1.0).await.unwrap();
+        let mut b = [0u8; 1];
+        dev.read_exact(&mut b).await.unwrap();
+        assert_eq!(&b, b"?");
+        // The device end goes away: end of file, the link is closed.
+        drop(dev);
+        let e = link.read_line(b"\n", "status", 1.0).await.unwrap_err();
+        assert!(
+            matches!(e.kind, DeviceErrorKind::Disconnected { .. }),
+            "{e}"
+        );
+        assert!(!link.is_open());
+        // Reopening asks the opener for a new stream; a refusal is a missing port.
+        link.open().unwrap();
+        assert!(ends.recv().await.is_some());
+        refuse.store(true, std::sync::atomic::Ordering::Relaxed);
+        let e = link.open().unwrap_err();
+        assert!(
+            matches!(&e.kind, DeviceErrorKind::PortUnavailable { port, .. } if port == "fake:grbl"),
             "{e}"
         );
     }

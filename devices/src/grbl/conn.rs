@@ -93,9 +93,9 @@ pub(super) struct Conn {
 }
 
 impl Conn {
-    pub(super) fn new(label: &str, port: &str, baud: u32, axes: Vec<(char, AxisSpec)>) -> Self {
+    pub(super) fn new(link: SerialLink, axes: Vec<(char, AxisSpec)>) -> Self {
         Self {
-            link: SerialLink::new(label, port, baud),
+            link,
             axes,
             flow: Flow::default(),
             connected: false,
@@ -644,7 +644,8 @@ pub(super) mod tests {
 
     #[test]
     fn absorb_matches_replies_to_lines_and_tracks_alarms_and_resets() {
-        let mut c = Conn::new("grbl", "/dev/null", 115_200, vec![('X', spec(Some("X")))]);
+        let link = SerialLink::new("grbl", "/dev/null", 115_200);
+        let mut c = Conn::new(link, vec![('X', spec(Some("X")))]);
         let a = c.flow.push(10).unwrap();
         let b = c.flow.push(10).unwrap();
         c.absorb(Reply::Ok);

@@ -40,6 +40,7 @@ use crate::clock::duration_s;
 use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::motion::move_duration_s;
 use crate::rig::AxisSpec;
+use crate::serial_link::{SerialLink, TransportOpener};
 
 /// How far a move's deadline is pushed out each time the controller is seen moving.
 const MOVE_PROGRESS_S: f64 = 5.0;
@@ -86,15 +87,33 @@ impl GrblController {
     /// connect). `device_label` names the controller in errors that concern no single axis.
     /// Nothing is opened until the first request.
     pub fn new(device_label: &str, port: &str, baud: u32, axes: Vec<AxisSpec>) -> Arc<Self> {
+        Self::over(SerialLink::new(device_label, port, baud), axes)
+    }
+
+    /// Like [`GrblController::new`], over the streams `open` hands it (one per connect) instead
+    /// of a serial port; `port` names them in errors. Lets a test run a fake controller on the
+    /// other end of `tokio::io::duplex`, on tokio's paused clock.
+    pub fn with_transport(
+        device_label: &str,
+        port: &str,
+        open: TransportOpener,
+        axes: Vec<AxisSpec>,
+    ) -> Arc<Self> {
+        Self::over(SerialLink::with_transport(device_label, port, open), axes)
+    }
+
+    fn over(link: SerialLink, axes: Vec<AxisSpec>) -> Arc<Self> {
+        let device_label = link.device().to_string();
+        let port = link.path().to_string();
         let axes: Vec<(char, AxisSpec)> = axes
             .into_iter()
             .filter_map(|a| Some((letter_of(&a)?, a)))
             .collect();
         Arc::new_cyclic(|me| GrblController {
-            label: device_label.to_string(),
-            port: port.to_string(),
+            label: device_label,
+            port,
             axes: axes.iter().map(|(l, a)| (*l, a.id.clone())).collect(),
-            conn: Mutex::new(Conn::new(device_label, port, baud, axes)),
+            conn: Mutex::new(Conn::new(link, axes)),
             activity: RwLock::new(()),
             homing_now: AtomicBool::new(false),
             has_laser: AtomicBool::new(false),

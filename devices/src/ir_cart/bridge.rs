@@ -12,7 +12,7 @@ use crate::cart::{CartDriver, Drive};
 use crate::clock::duration_s;
 use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::rig::{CartSpec, IR_BRIDGE_BAUD};
-use crate::serial_link::SerialLink;
+use crate::serial_link::{SerialLink, TransportOpener};
 
 /// Longest wait for `OK hhhh` (the bridge repeats the IR message before answering).
 const REPLY_TIMEOUT_S: f64 = 1.0;
@@ -76,8 +76,30 @@ impl IrBridgeCart {
         output: Output,
         step: u8,
     ) -> DeviceResult<Self> {
+        Self::over(SerialLink::new(device, port, baud), channel, output, step)
+    }
+
+    /// Like [`IrBridgeCart::new`], over the streams `open` hands it (one per connect) instead
+    /// of a serial port; `port` names them in errors. Lets a test run a fake bridge on the
+    /// other end of `tokio::io::duplex`, on tokio's paused clock.
+    pub fn with_transport(
+        device: &str,
+        port: &str,
+        open: TransportOpener,
+        channel: u8,
+        output: Output,
+        step: u8,
+    ) -> DeviceResult<Self> {
+        let link = SerialLink::with_transport(device, port, open);
+        Self::over(link, channel, output, step)
+    }
+
+    fn over(link: SerialLink, channel: u8, output: Output, step: u8) -> DeviceResult<Self> {
         let bad = |message: String| {
-            DeviceError::new(device.to_string(), DeviceErrorKind::Other { message })
+            DeviceError::new(
+                link.device().to_string(),
+                DeviceErrorKind::Other { message },
+            )
         };
         if !(1..=4).contains(&channel) {
             return Err(bad(format!(
@@ -90,7 +112,7 @@ impl IrBridgeCart {
             )));
         }
         Ok(Self {
-            link: SerialLink::new(device, port, baud),
+            link,
             channel,
             output,
             step,

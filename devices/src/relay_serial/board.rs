@@ -18,7 +18,7 @@ use super::codec::{self, Command, MAX_INDEX};
 use crate::clock::duration_s;
 use crate::error::{DeviceError, DeviceErrorKind, DeviceResult};
 use crate::rig::{RELAY_SERIAL_BAUD, SwitchBankSpec};
-use crate::serial_link::SerialLink;
+use crate::serial_link::{SerialLink, TransportOpener};
 use crate::switch_bank::SwitchBankDriver;
 
 /// Longest wait for the board's answer to one command.
@@ -60,13 +60,29 @@ impl NumatoBoard {
     /// `watchdog_s` is the board's lease; a keepalive goes out at a third of it while idle
     /// (0 or less: no keepalive).
     pub fn new(device: &str, port: &str, baud: u32, watchdog_s: f64) -> Arc<Self> {
+        Self::over(SerialLink::new(device, port, baud), watchdog_s)
+    }
+
+    /// Like [`NumatoBoard::new`], over the streams `open` hands it (one per connect) instead
+    /// of a serial port; `port` names them in errors. Lets a test run a fake board on the
+    /// other end of `tokio::io::duplex`, on tokio's paused clock.
+    pub fn with_transport(
+        device: &str,
+        port: &str,
+        open: TransportOpener,
+        watchdog_s: f64,
+    ) -> Arc<Self> {
+        Self::over(SerialLink::with_transport(device, port, open), watchdog_s)
+    }
+
+    fn over(link: SerialLink, watchdog_s: f64) -> Arc<Self> {
         Arc::new_cyclic(|me| NumatoBoard {
-            device: device.to_string(),
-            port: port.to_string(),
+            device: link.device().to_string(),
+            port: link.path().to_string(),
             watchdog_s,
             me: me.clone(),
             inner: Mutex::new(Inner {
-                link: SerialLink::new(device, port, baud),
+                link,
                 ready: false,
                 wanted: [None; RELAYS],
                 lost: None,

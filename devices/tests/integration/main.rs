@@ -4,6 +4,7 @@
 
 mod actors;
 mod camera_accounting;
+mod fake_port;
 mod grbl_codec;
 mod grbl_driver;
 mod relay_codecs;
