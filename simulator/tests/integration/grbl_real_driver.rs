@@ -23,6 +23,11 @@ use stagehand_simulator::World;
 use stagehand_simulator::emulators::grbl::GrblBuild;
 use stagehand_simulator::emulators::{Faults, GrblEmulator};
 
+/// The boards here accelerate at 600 units/s² (`$120`–`$122`) instead of the peer's usual 60:
+/// the scenario is about the protocol, and the homing cycles and moves then take a fraction of
+/// the wall time. [`rig_axes`] says the same to the driver.
+const FAST: &str = "$120=600 $121=600 $122=600";
+
 /// The light stage's three axes placed in GRBL's negative machine space: the turntable and
 /// the arc (0…300°) run toward −machine from home at 0°, the tilt (−30…30°) homes at +30°.
 fn rig_axes() -> Vec<AxisSpec> {
@@ -36,7 +41,7 @@ fn rig_axes() -> Vec<AxisSpec> {
                 controller_axis: Some(l.into()),
                 steps_per_deg: 142.222,
                 speed_deg_s: 30.0,
-                accel_deg_s2: 60.0,
+                accel_deg_s2: 600.0,
                 homing_speed_deg_s: 40.0,
                 min_deg: if tilt { -30.0 } else { 0.0 },
                 max_deg: if tilt { 30.0 } else { 300.0 },
@@ -197,7 +202,7 @@ fn on_real(build: Build) {
 
 /// The scenario on one freshly powered board.
 fn on_real_board(build: Build) {
-    let Some(mut board) = Board::start(build, "") else {
+    let Some(mut board) = Board::start(build, FAST) else {
         return;
     };
     let rt = grbl_peer::runtime();
@@ -240,7 +245,7 @@ fn the_driver_runs_the_emulator_the_same_way() {
         rig.axes = rig_axes();
         let axes = rig.axes.clone();
         let world = World::new(Arc::new(rig), RigClock::starting_at(0.0), 1).expect("world");
-        let settings = grbl_peer::settings("");
+        let settings = grbl_peer::settings(FAST);
         let h = GrblEmulator::spawn_with(
             world.clone(),
             &axes,
@@ -300,7 +305,7 @@ fn wrong_settings_are_refused_at_connect_with_the_setting_to_send() {
 #[test]
 fn a_stock_board_homes_all_axes_once() {
     let _one_at_a_time = grbl_peer::exclusive();
-    let Some(board) = Board::start(Build::Stock, "") else {
+    let Some(board) = Board::start(Build::Stock, FAST) else {
         return;
     };
     let rt = grbl_peer::runtime();
