@@ -8,15 +8,12 @@
 
 use crate::common;
 
-use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use reqwest::Method;
 use serde_json::{Value, json};
-use stagehand::client::{Body, Client};
+use stagehand::client::Body;
 use stagehand::daemon::{DaemonError, RunningDaemon};
-use tokio::runtime::Handle;
 
 type TestResult = Result<(), Box<dyn std::error::Error + Send + Sync>>;
 
@@ -40,21 +37,17 @@ struct Resp {
 }
 
 /// A blocking client for one daemon (call it outside the runtime's workers): requests go
-/// through `stagehand::client`, except big bodies and paths with dot segments, which go byte
-/// for byte over a socket of their own.
+/// through the daemon's router, except big bodies and paths with dot segments, which go byte
+/// for byte over its socket (an HTTP client would resolve the dot segments, and a body over
+/// the limit is refused while it is still being sent, which only a connection shows).
 struct Http {
-    client: Client,
-    base: String,
-    runtime: Handle,
+    api: common::api::Api,
 }
 
 impl Http {
-    fn new(addr: SocketAddr) -> Http {
-        let client = Client::new(&addr.to_string(), None).expect("a client");
+    fn new(d: &RunningDaemon) -> Http {
         Http {
-            base: client.base().to_string(),
-            client,
-            runtime: Handle::current(),
+            api: common::api::Api::operator(d),
         }
     }
 
@@ -69,18 +62,9 @@ impl Http {
         if body.is_some_and(|b| b.len() > 64 << 10) || common::api::has_dot_segment(path) {
             return self.send_big(method, path, token, ctype, body.unwrap_or(&[]));
         }
-        let m = Method::from_bytes(method.as_bytes())
-            .map_err(|e| format!("{method} {path}: cannot build the request: {e}"))?;
         let headers: Vec<(&str, &str)> = ctype.map(|c| ("Content-Type", c)).into_iter().collect();
         let body = body.map_or(Body::Empty, |b| Body::Raw(b.to_vec()));
-        let r = self
-            .runtime
-            .block_on(
-                self.client
-                    .with_token(token)
-                    .raw_with(m, path, &headers, body),
-            )
-            .map_err(|e| format!("{method} {path}: transport error: {e}"))?;
+        let r = self.api.send(method, path, token, &headers, body)?;
         Ok(Resp {
             status: r.status,
             ctype: r.header("content-type").to_string(),
@@ -103,7 +87,7 @@ impl Http {
     ) -> Result<Resp, String> {
         use std::io::{Read, Write};
         let what = |e: std::io::Error| format!("{method} {path}: {e}");
-        let host = self.base.trim_start_matches("http://");
+        let host = self.api.base.trim_start_matches("http://");
         let mut s = std::net::TcpStream::connect(host).map_err(what)?;
         s.set_read_timeout(Some(Duration::from_secs(20)))
             .map_err(what)?;
@@ -857,7 +841,7 @@ async fn every_route_answers_bad_input_with_a_4xx_and_a_message() -> TestResult 
     let d = start(tmp.path(), &rig).await?;
     let op_token = d.state.tokens.operator.clone();
     let ro_token = d.state.tokens.read_only.clone();
-    let http = Http::new(d.addr);
+    let http = Http::new(&d);
     let data = tmp.path().join("data");
     let tokens_before = std::fs::read(data.join("tokens.json"))?;
 

@@ -209,7 +209,8 @@ async fn daemon(d: &Dataset) -> RunningDaemon {
         .expect("daemon starts")
 }
 
-/// A blocking HTTP client (call it inside `spawn_blocking`).
+/// A blocking client (call it inside `spawn_blocking`): requests through the daemon's router,
+/// raw targets over its socket.
 #[derive(Clone)]
 struct Api {
     http: common::api::Api,
@@ -238,7 +239,7 @@ impl Api {
     fn new(d: &RunningDaemon) -> Self {
         // Reading frames needs only the read-only token.
         Self {
-            http: common::api::Api::new(d, &d.state.tokens.read_only),
+            http: common::api::Api::read_only(d),
         }
     }
 
@@ -278,7 +279,8 @@ impl Api {
         )
     }
 
-    /// Sends `GET <raw target>` byte for byte (no client-side normalisation of `..` or `%2F`).
+    /// Sends `GET <raw target>` byte for byte over the daemon's socket (no client-side
+    /// normalisation of `..` or `%2F`).
     fn raw_get(&self, target: &str) -> (u16, String) {
         self.http.get_exact(target)
     }
