@@ -7,9 +7,11 @@
 //! depth, expression depth, value sizes, plan steps, wall-clock time) so a runaway script stops
 //! with an error naming the file, the position and the limit.
 
-mod api;
+mod args;
+mod builder;
 mod error;
 mod params;
+mod register;
 
 #[cfg(test)]
 mod tests;
@@ -107,7 +109,7 @@ pub fn build_plan_with_limits(
 ) -> Result<Plan, ScriptError> {
     let file = source.name.clone();
     let overrides: BTreeMap<String, String> = overrides.iter().cloned().collect();
-    let state = Arc::new(Mutex::new(api::Builder::new(
+    let state = Arc::new(Mutex::new(builder::Builder::new(
         file.clone(),
         Arc::new(rig.clone()),
         overrides.clone(),
@@ -146,7 +148,7 @@ pub fn build_plan_with_limits(
             None
         }
     });
-    api::register(&mut engine, &state);
+    register::register(&mut engine, &state);
 
     let ast = engine
         .compile(&source.text)
@@ -154,7 +156,7 @@ pub fn build_plan_with_limits(
     let result = engine.run_ast(&ast);
     drop(engine);
 
-    let mut b = api::lock(&state);
+    let mut b = builder::lock(&state);
     if let Some(err) = b.error.take() {
         return Err(err);
     }

@@ -67,8 +67,7 @@ fn post_routes_with_a_body(api: &Api) -> Vec<String> {
 async fn json_arrays_are_refused_where_objects_are_documented() {
     let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
-    // No event stream here: the requests go through the router, without a socket.
-    let api = Api::in_process(&d, &d.state.tokens.operator);
+    let api = Api::operator(&d);
     common::blocking(move || {
         let routes = post_routes_with_a_body(&api);
         for must in [
@@ -165,8 +164,7 @@ async fn an_aborted_run_says_how_to_resume_over_the_api_and_resumes_with_an_eta(
 async fn runs_are_listed_newest_first_with_start_end_duration_and_a_limit() {
     let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
-    // No event stream here: the requests go through the router, without a socket.
-    let api = Api::in_process(&d, &d.state.tokens.operator);
+    let api = Api::operator(&d);
     common::blocking(move || {
         let first = start_prompted(&api);
         wait_prompt(&api, 0);
@@ -226,6 +224,7 @@ async fn runs_are_listed_newest_first_with_start_end_duration_and_a_limit() {
 async fn sse_replays_missed_events_and_shutdown_sends_the_runs_final_event() {
     let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
+    // The event streams go over the daemon's socket, the other requests through its router.
     let api = Api::operator(&d);
     let (id, reader) = common::blocking(move || {
         // Some events with ids (device changes are published as the device watch sees them).
@@ -292,8 +291,7 @@ async fn sse_replays_missed_events_and_shutdown_sends_the_runs_final_event() {
 async fn health_needs_no_token_and_every_answer_has_security_headers() {
     let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
-    // No event stream here: the requests go through the router, without a socket.
-    let api = Api::in_process(&d, &d.state.tokens.operator);
+    let api = Api::operator(&d);
     common::blocking(move || {
         let h = api.get_anonymous("/api/health");
         assert_eq!(h.status, 200, "{}", h.body);
@@ -348,8 +346,7 @@ async fn health_needs_no_token_and_every_answer_has_security_headers() {
 async fn a_script_that_fails_validation_answers_its_violations_as_a_list() {
     let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
-    // No event stream here: the requests go through the router, without a socket.
-    let api = Api::in_process(&d, &d.state.tokens.operator);
+    let api = Api::operator(&d);
     common::blocking(move || {
         // Line 3 moves out of the soft limits; line 4 captures with a camera the rig lacks.
         let bad = "// bad.rhai\nhome();\nmove_to(#{turntable: 1000.0});\ncapture(0.01);\n";
@@ -415,7 +412,7 @@ async fn several_axes_move_at_once_with_the_single_move_checks() {
     let _turn = crate::grbl_peer::alongside();
     let (d, _dir) = daemon().await;
     let api = Api::operator(&d);
-    let ro = Api::new(&d, &d.state.tokens.read_only);
+    let ro = Api::read_only(&d);
     common::blocking(move || {
         // Not homed: refused, nothing moves.
         let v = api.expect(

@@ -27,7 +27,7 @@ impl Api {
 
     fn read_only(d: &RunningDaemon) -> Self {
         Self {
-            http: common::api::Api::new(d, &d.state.tokens.read_only),
+            http: common::api::Api::read_only(d),
         }
     }
 
@@ -367,6 +367,8 @@ async fn hold_to_jog_stops_when_the_client_goes_quiet() {
     let api = Api::operator(&d);
     let http = api.clone();
     common::blocking(move || http.ok("/api/axes/turntable/home", None)).await;
+    // The WebSocket needs the daemon's listener (an upgraded connection); the HTTP requests
+    // around it go through the router.
     let url = |token: &str| format!("ws://{}/api/ws/jog?access_token={token}", d.addr);
 
     // A read-only token may not jog.

@@ -14,6 +14,7 @@ mod daemon_api;
 mod daemon_bad_input;
 mod daemon_devices;
 mod daemon_frames;
+mod daemon_remote;
 mod daemon_runs;
 mod determinism;
 mod emulated_rig;

@@ -1,8 +1,11 @@
 //! A blocking JSON client for a daemon under test (call it inside `spawn_blocking` or a thread
-//! of its own: each call waits on the test's runtime). Over the socket it uses
-//! `stagehand::client`, the typed client; [`Api::in_process`] sends the same requests through
-//! the daemon's axum router (`tower::ServiceExt::oneshot`) without a socket, for tests that do
-//! not stream.
+//! of its own: each call waits on the test's runtime).
+//!
+//! Requests go through the daemon's axum router (`tower::ServiceExt::oneshot`), without a
+//! socket: no handler reads the peer's address, so the router answers as the server would.
+//! What needs the daemon's listener goes over its socket with `stagehand::client`, the typed
+//! client: event streams ([`Api::sse`]) and targets that must reach the server byte for byte
+//! ([`Api::get_exact`], and paths with dot segments, which an HTTP client would resolve).
 
 use reqwest::Method;
 use serde_json::Value;
@@ -40,15 +43,17 @@ impl From<RawReply> for Reply {
     }
 }
 
-/// One daemon and one token.
+/// One daemon and one token: requests through its router, streams over its socket.
 #[derive(Clone)]
 pub struct Api {
+    /// `http://` and the daemon's socket address.
     pub base: String,
     pub token: String,
+    /// The socket client (event streams), with [`Api::token`].
     client: Client,
     runtime: Handle,
-    /// The daemon's router, when requests skip the socket ([`Api::in_process`]).
-    router: Option<axum::Router>,
+    /// The daemon's router: every other request goes through it.
+    router: axum::Router,
 }
 
 impl Api {
@@ -60,23 +65,18 @@ impl Api {
             token: token.to_string(),
             client,
             runtime: Handle::current(),
-            router: None,
-        }
-    }
-
-    /// A client of `d` with `token` whose requests go through the daemon's router in-process,
-    /// not over a socket (made inside the test's runtime). Event streams and byte-exact
-    /// targets still need the socket: use [`Api::new`] for those.
-    pub fn in_process(d: &RunningDaemon, token: &str) -> Self {
-        Self {
-            router: Some(stagehand::daemon::router(d.state.clone())),
-            ..Self::new(d, token)
+            router: stagehand::daemon::router(d.state.clone()),
         }
     }
 
     /// A client with the operator token.
     pub fn operator(d: &RunningDaemon) -> Self {
         Self::new(d, &d.state.tokens.operator)
+    }
+
+    /// A client with the read-only token.
+    pub fn read_only(d: &RunningDaemon) -> Self {
+        Self::new(d, &d.state.tokens.read_only)
     }
 
     /// The same daemon with another token.
@@ -88,31 +88,47 @@ impl Api {
         }
     }
 
-    /// `method path` with extra headers and a body, answered as it came (body bytes).
-    pub fn raw(&self, method: &str, path: &str, headers: &[(&str, &str)], body: Body) -> RawReply {
-        let method = Method::from_bytes(method.as_bytes()).expect("an HTTP method");
-        self.runtime
-            .block_on(self.client.raw_with(method, path, headers, body))
-            .expect("the daemon answers")
+    /// `method path` through the router with `token` (none: no `Authorization` header), extra
+    /// headers and a body, answered as it came (body bytes). An error only when no request
+    /// can be made of the method or path.
+    pub fn send(
+        &self,
+        method: &str,
+        path: &str,
+        token: Option<&str>,
+        headers: &[(&str, &str)],
+        body: Body,
+    ) -> Result<RawReply, String> {
+        let method = Method::from_bytes(method.as_bytes())
+            .map_err(|e| format!("{method} {path}: not an HTTP method: {e}"))?;
+        self.runtime.block_on(oneshot(
+            self.router.clone(),
+            method,
+            path,
+            token,
+            headers,
+            body,
+        ))
     }
 
-    /// `method path` with the token (none when `anonymous`), over the socket or the router.
+    /// `method path` with the token, extra headers and a body, answered as it came (body
+    /// bytes).
+    pub fn raw(&self, method: &str, path: &str, headers: &[(&str, &str)], body: Body) -> RawReply {
+        self.send(method, path, Some(&self.token), headers, body)
+            .expect("a request")
+    }
+
+    /// `method path` with the token (none when `anonymous`).
     fn call(&self, anonymous: bool, method: Method, path: &str, body: Body) -> Reply {
         let token = (!anonymous).then_some(self.token.as_str());
-        if let Some(router) = &self.router {
-            return self
-                .runtime
-                .block_on(oneshot(router.clone(), method, path, token, body));
-        }
-        let client = self.client.with_token(token);
-        self.runtime
-            .block_on(client.raw(method, path, body))
-            .expect("the daemon answers")
+        self.send(method.as_str(), path, token, &[], body)
+            .expect("a request")
             .into()
     }
 
     /// `GET path` with the token. A path with a dot segment (`/..`, `/%2e%2e`) goes byte for
-    /// byte over a socket of its own: an HTTP client resolves those before sending.
+    /// byte over the daemon's socket ([`Api::get_exact`]), as a client that does not resolve
+    /// them would send it.
     pub fn get_reply(&self, path: &str) -> Reply {
         if has_dot_segment(path) {
             return self.exact_get(path);
@@ -120,8 +136,9 @@ impl Api {
         self.call(false, Method::GET, path, Body::Empty)
     }
 
-    /// `GET target` as written (no client-side resolution of `..` or `%2F`), on a
-    /// connection that closes after the answer: the status and the whole answer as text.
+    /// `GET target` as written (no client-side resolution of `..` or `%2F`), over the daemon's
+    /// socket on a connection that closes after the answer: the status and the whole answer as
+    /// text.
     pub fn get_exact(&self, target: &str) -> (u16, String) {
         use std::io::{Read, Write};
         let host = self.base.trim_start_matches("http://");
@@ -218,7 +235,7 @@ impl Api {
         (r.status, r.body)
     }
 
-    /// Opens `GET /api/events`, with `Last-Event-ID` when given.
+    /// Opens `GET /api/events` over the daemon's socket, with `Last-Event-ID` when given.
     pub fn sse(&self, last_event_id: Option<u64>) -> Sse {
         let events = self
             .runtime
@@ -231,20 +248,24 @@ impl Api {
     }
 }
 
-/// One request through `router` without a socket: as the socket would carry it (bearer
-/// token, content type, body), answered with its status, headers and body.
+/// One request through `router` without a socket, as the socket would carry it (bearer
+/// token, extra headers, content type, body), answered with its status, headers and body.
 async fn oneshot(
     router: axum::Router,
     method: Method,
     path: &str,
     token: Option<&str>,
+    headers: &[(&str, &str)],
     body: Body,
-) -> Reply {
+) -> Result<RawReply, String> {
     let mut req = axum::http::Request::builder()
         .method(method.as_str())
         .uri(path);
     if let Some(token) = token {
         req = req.header("authorization", format!("Bearer {token}"));
+    }
+    for (name, value) in headers {
+        req = req.header(*name, *value);
     }
     let (content_type, bytes) = match body {
         Body::Empty => (None, Vec::new()),
@@ -262,7 +283,9 @@ async fn oneshot(
     if let Some(ct) = content_type {
         req = req.header("content-type", ct);
     }
-    let req = req.body(axum::body::Body::from(bytes)).expect("a request");
+    let req = req
+        .body(axum::body::Body::from(bytes))
+        .map_err(|e| format!("{method} {path}: cannot build the request: {e}"))?;
     let resp = router.oneshot(req).await.expect("the router answers");
     let status = resp.status().as_u16();
     let headers = resp
@@ -270,16 +293,15 @@ async fn oneshot(
         .iter()
         .map(|(k, v)| (k.as_str().to_string(), v.to_str().unwrap_or("").to_string()))
         .collect();
-    let raw = axum::body::to_bytes(resp.into_body(), usize::MAX)
+    let body = axum::body::to_bytes(resp.into_body(), usize::MAX)
         .await
-        .expect("the body");
-    let body = serde_json::from_slice(&raw)
-        .unwrap_or_else(|_| Value::String(String::from_utf8_lossy(&raw).into_owned()));
-    Reply {
+        .expect("the body")
+        .to_vec();
+    Ok(RawReply {
         status,
         headers,
         body,
-    }
+    })
 }
 
 /// True when `path` has a `.` or `..` segment, plain or percent-encoded (an HTTP client
