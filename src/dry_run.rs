@@ -330,6 +330,7 @@ mod tests {
             Action::Prompt {
                 message: "swap".into(),
                 fixture: None,
+                placement: None,
                 laser_mount_deg: None,
                 laser_fit_nm: None,
             },

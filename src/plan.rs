@@ -5,6 +5,7 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
+use stagehand_devices::fixture_pose::FixturePose;
 
 /// A complete, serialisable capture plan.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -72,6 +73,10 @@ pub enum Action {
         message: String,
         /// Fixture the operator places on the stage (sample, checkerboard, colorchecker, planes).
         fixture: Option<String>,
+        /// How the operator places it (tilted, turned, shifted); flat and centred when a
+        /// fixture is named without one.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        placement: Option<FixturePose>,
         /// Elevation on the light arc where the operator mounts the laser unit.
         laser_mount_deg: Option<f64>,
         /// Laser colour the operator fits.
@@ -219,6 +224,7 @@ mod tests {
             Action::Prompt {
                 message: String::new(),
                 fixture: None,
+                placement: None,
                 laser_mount_deg: None,
                 laser_fit_nm: None,
             },

@@ -4,6 +4,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
+use stagehand_devices::fixture_pose::FixturePose;
 use stagehand_devices::ground_truth::GroundTruthData;
 
 use crate::layout::sanitize;
@@ -79,6 +80,11 @@ pub struct FrameMeta {
     pub laser_mount_deg: Option<f64>,
     /// Fixture on the stage (sample, checkerboard, colorchecker, planes).
     pub fixture: String,
+    /// How the operator was asked to place the fixture (index schema ≥ 4; flat and centred,
+    /// and left out of the embedded JSON, unless a prompt said otherwise).
+    #[serde(default, skip_serializing_if = "FixturePose::is_flat_centred")]
+    #[cfg_attr(feature = "utoipa", schema(value_type = Object))]
+    pub fixture_pose: FixturePose,
     /// Reflectometer cart position in millimetres, if known.
     pub cart_mm: Option<f64>,
     /// Rig time in seconds at which the exposure started.
@@ -219,6 +225,7 @@ pub(crate) mod tests {
             laser_tilt_deg: None,
             laser_mount_deg: Some(45.0),
             fixture: "sample".into(),
+            fixture_pose: FixturePose::default(),
             cart_mm: None,
             rig_time_s: 12.5 + step as f64,
             wall_time_unix_s: 1_795_268_707.25,

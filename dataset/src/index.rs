@@ -33,10 +33,31 @@ use crate::frame_meta::FrameMeta;
 use crate::manifest::Manifest;
 use crate::plan::RunPlan;
 
-/// Schema version, stored in `PRAGMA user_version`. Versions 1 (no `ground_truth` table) and
-/// 2 (no `frames.sample_shift`) are upgraded in place when [`crate::RunStore::open`] opens the
-/// run; [`crate::RunReader`] reads them without changing the file.
-pub const SCHEMA_VERSION: i32 = 3;
+/// Schema version, stored in `PRAGMA user_version`. Versions 1 (no `ground_truth` table),
+/// 2 (no `frames.sample_shift`) and 3 (no `frames.fixture_pose`, no `products` table) are
+/// upgraded in place when [`crate::RunStore::open`] opens the run; [`crate::RunReader`] reads
+/// them without changing the file.
+pub const SCHEMA_VERSION: i32 = 4;
+
+/// What schema version 4 added to version 3: how each frame's fixture was placed (JSON of a
+/// `FixturePose`, NULL for flat and centred), and the products that processing wrote into the
+/// run directory.
+pub const PRODUCTS_SCHEMA: &str = "
+ALTER TABLE frames ADD COLUMN fixture_pose TEXT;
+CREATE TABLE IF NOT EXISTS products (
+    id              INTEGER PRIMARY KEY,
+    kind            TEXT NOT NULL,            -- hdr, rectified, btf
+    key             TEXT NOT NULL UNIQUE,     -- what the product is of (kind/step/camera...)
+    path            TEXT NOT NULL UNIQUE,     -- relative to the run directory
+    inputs          TEXT NOT NULL,            -- JSON array of input frame paths
+    calibrations    TEXT NOT NULL,            -- JSON array of calibration ids
+    software        TEXT NOT NULL,            -- e.g. stagehand 0.1.0
+    parameters      TEXT NOT NULL,            -- JSON
+    sha256          TEXT NOT NULL,            -- of the file's bytes (a directory: of its manifest)
+    size_bytes      INTEGER NOT NULL,
+    created_unix_s  REAL NOT NULL
+) STRICT;
+";
 
 /// What schema version 3 added to version 2: the left shift of each raw frame's samples in its
 /// PNG (MSB alignment, see [`crate::png16`]). Rows of older datasets get 0: their PNGs hold
@@ -307,8 +328,8 @@ impl Index {
         tx.execute_batch(SCHEMA).map_err(sqlite("create schema"))?;
         tx.execute_batch(GROUND_TRUTH_SCHEMA)
             .map_err(sqlite("create ground truth table"))?;
-        tx.execute_batch(SAMPLE_SHIFT_SCHEMA)
-            .map_err(sqlite("add the sample shift column"))?;
+        tx.execute_batch(&format!("{SAMPLE_SHIFT_SCHEMA} {PRODUCTS_SCHEMA}"))
+            .map_err(sqlite("add the sample shift column and the products table"))?;
         tx.pragma_update(None, "user_version", SCHEMA_VERSION)
             .map_err(sqlite("set schema version"))?;
         tx.execute(
@@ -348,19 +369,16 @@ impl Index {
             .conn
             .query_row("PRAGMA user_version", [], |row| row.get(0))
             .map_err(index.err("read schema version"))?;
-        if version == 1 || version == 2 {
-            let ground_truth = if version == 1 {
-                GROUND_TRUTH_SCHEMA
-            } else {
-                ""
-            };
+        if (1..SCHEMA_VERSION).contains(&version) {
+            let ground_truth = if version < 2 { GROUND_TRUTH_SCHEMA } else { "" };
+            let sample_shift = if version < 3 { SAMPLE_SHIFT_SCHEMA } else { "" };
             index
                 .conn
                 .execute_batch(&format!(
-                    "BEGIN; {ground_truth} {SAMPLE_SHIFT_SCHEMA} \
+                    "BEGIN; {ground_truth} {sample_shift} {PRODUCTS_SCHEMA} \
                      PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
                 ))
-                .map_err(index.err("upgrade the schema to version 3"))?;
+                .map_err(index.err("upgrade the schema to version 4"))?;
             return Ok(index);
         }
         if version != SCHEMA_VERSION {
@@ -439,6 +457,10 @@ impl Index {
                     json(serde_json::to_string(&m.axes_deg))?,
                     json(serde_json::to_string(&m.lamps_on))?,
                     json(serde_json::to_string(&m.notes))?,
+                    match m.fixture_pose.is_flat_centred() {
+                        true => None,
+                        false => Some(json(serde_json::to_string(&m.fixture_pose))?),
+                    },
                 ));
             }
             encoded_batch.push(encoded);
@@ -482,13 +504,14 @@ impl Index {
                             exposure_index, exposure_s, exposures_s, gain, trigger_id, axes_deg,
                             lamps_on, laser_armed, laser_on, laser_colour_nm, laser_tilt_deg,
                             laser_mount_deg, fixture, cart_mm, rig_time_s, wall_time_unix_s, width,
-                            height, bit_depth, saturated_samples, notes, sample_shift)
+                            height, bit_depth, saturated_samples, notes, sample_shift, fixture_pose)
                          VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15,
                             ?16, ?17, ?18, ?19, ?20, ?21, ?22, ?23, ?24, ?25, ?26, ?27, ?28, ?29,
-                            ?30)",
+                            ?30, ?31)",
                     )
                     .map_err(sqlite("prepare frame insert"))?;
-                for (row, (exposures, axes, lamps, notes)) in rows.iter().zip(encoded.iter()) {
+                for (row, (exposures, axes, lamps, notes, pose)) in rows.iter().zip(encoded.iter())
+                {
                     let m = row.meta;
                     let too_big = |what: &str| StorageError::InvalidFrame {
                         name: row.path.clone(),
@@ -533,6 +556,7 @@ impl Index {
                             saturated,
                             notes,
                             m.sample_shift,
+                            pose,
                         ])
                         .map_err(sqlite("insert frame row"))?;
                     let frame_id = tx.last_insert_rowid();

@@ -10,6 +10,7 @@ use std::path::Path;
 use rusqlite::types::Value;
 use rusqlite::{Connection, OptionalExtension, Row};
 use serde::Serialize;
+use stagehand_devices::fixture_pose::FixturePose;
 
 use crate::error::{Result, StorageError};
 use crate::frame_meta::{FrameKind, FrameMeta};
@@ -133,6 +134,11 @@ fn frame_columns(version: i32) -> String {
     } else {
         "0"
     };
+    let pose = if version >= 4 {
+        "frames.fixture_pose"
+    } else {
+        "NULL"
+    };
     format!(
         "frames.id, frames.path, frames.sha256, frames.size_bytes, frames.step, frames.block, \
          frames.label, frames.camera, frames.kind, frames.exposure_index, frames.exposure_s, \
@@ -140,7 +146,7 @@ fn frame_columns(version: i32) -> String {
          frames.laser_armed, frames.laser_on, frames.laser_colour_nm, frames.laser_tilt_deg, \
          frames.laser_mount_deg, frames.fixture, frames.cart_mm, frames.rig_time_s, \
          frames.wall_time_unix_s, frames.width, frames.height, frames.bit_depth, \
-         frames.saturated_samples, frames.notes, {shift}"
+         frames.saturated_samples, frames.notes, {shift}, {pose}"
     )
 }
 
@@ -192,6 +198,10 @@ fn frame_from_row(r: &Row<'_>) -> rusqlite::Result<StoredFrame> {
         laser_tilt_deg: r.get(19)?,
         laser_mount_deg: r.get(20)?,
         fixture: r.get(21)?,
+        fixture_pose: match r.get::<_, Option<String>>(31)? {
+            None => FixturePose::default(),
+            Some(text) => serde_json::from_str(&text).map_err(|e| decode_failure(31, e))?,
+        },
         cart_mm: r.get(22)?,
         rig_time_s: r.get(23)?,
         wall_time_unix_s: r.get(24)?,

@@ -428,6 +428,7 @@ fn old_datasets_without_sample_shift_still_read() -> TestResult {
     }
     conn.execute_batch(
         "DROP VIEW frame_lamps; ALTER TABLE frames DROP COLUMN sample_shift;
+         ALTER TABLE frames DROP COLUMN fixture_pose; DROP TABLE products;
          CREATE VIEW frame_lamps AS
              SELECT frames.*, j.value AS lamp FROM frames, json_each(frames.lamps_on) AS j;
          DROP TABLE ground_truth;
@@ -674,5 +675,38 @@ fn verify_checks_the_index_against_the_plan() -> TestResult {
     let command = format!("stagehand resume --retake 2 {}", dir.display());
     assert_eq!(report.retake_command.as_deref(), Some(command.as_str()));
     assert!(report.render().contains(&format!("repair: {command}")));
+    Ok(())
+}
+
+#[test]
+fn a_placed_fixture_is_indexed_and_embedded_and_a_flat_one_is_left_out() -> TestResult {
+    use stagehand_devices::fixture_pose::FixturePose;
+    let tmp = tempfile::tempdir()?;
+    let mut store = RunStore::create(tmp.path(), manifest(), &plan())?;
+    let mut frames = step1_frames();
+    let pose = FixturePose {
+        tilt_deg: 30.0,
+        tilt_toward_deg: 90.0,
+        ..FixturePose::default()
+    };
+    frames[0].meta.fixture_pose = pose;
+    let flat_json = frames[1].meta.embedded_json()?;
+    assert!(!flat_json.contains("fixture_pose"), "{flat_json}");
+    assert!(
+        frames[0]
+            .meta
+            .embedded_json()?
+            .contains("\"tilt_deg\":30.0")
+    );
+    store.commit_step(&record(1, 9.5), frames.clone())?;
+    let rows = store.frames(Some(1))?;
+    let placed: Vec<FixturePose> = rows.iter().map(|r| r.meta.fixture_pose).collect();
+    assert_eq!(placed.iter().filter(|p| **p == pose).count(), 1);
+    assert_eq!(
+        placed.iter().filter(|p| p.is_flat_centred()).count(),
+        rows.len() - 1
+    );
+    let reader = RunReader::open(store.dir())?;
+    assert_eq!(reader.schema_version(), index::SCHEMA_VERSION);
     Ok(())
 }

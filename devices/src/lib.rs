@@ -13,6 +13,7 @@ pub mod clock;
 pub mod compute_time;
 pub mod discover;
 pub mod error;
+pub mod fixture_pose;
 pub mod frame;
 pub mod grbl;
 pub mod ground_truth;

@@ -56,7 +56,11 @@ pub struct CameraGeometry {
     pub axis: TurntableAxis,
 }
 
-/// Calibrates every camera and places it in the rig frame.
+/// Calibrates every camera and places it in the rig frame. A camera that saw the board flat
+/// at three or more table angles, the reference among them, finds the turntable axis and the
+/// rig frame itself; any other (a grazing camera cannot see a flat board) is placed through a
+/// placement it shares with a placed camera: rig → B = (board → B) ∘ (board → A)⁻¹ ∘ (rig → A),
+/// over the shared placement with the smallest reprojection error in both.
 pub fn calibrate_geometry(
     placements: &[Placement],
     cameras: &[CameraViews],
@@ -69,63 +73,128 @@ pub fn calibrate_geometry(
             what: "rig frame",
             why: "no placement has the board flat at turntable 0°; it defines the reference plane and the X axis".into(),
         })?;
+    let solved: Vec<CameraCalibration> = cameras
+        .iter()
+        .map(|cam| {
+            let views: Vec<BoardView> = cam.views.iter().map(|(_, v)| v.clone()).collect();
+            calibrate_camera(&views, cam.width, cam.height, options)
+                .map_err(|e| named(&cam.camera, e))
+        })
+        .collect::<Result<_, _>>()?;
+    let mut placed: Vec<Option<(Pose, TurntableAxis)>> = cameras
+        .iter()
+        .zip(&solved)
+        .map(|(cam, cal)| own_rig_frame(cam, cal, placements, reference))
+        .collect();
+    if placed.iter().all(Option::is_none) {
+        return Err(ProcessingError::IllPosed {
+            what: "rig frame",
+            why: "no camera saw the board flat at 3 or more turntable angles including 0°".into(),
+        });
+    }
+    while let Some((b, frame)) = best_chain(cameras, &solved, &placed) {
+        placed[b] = Some(frame);
+    }
     cameras
         .iter()
-        .map(|cam| calibrate_one(cam, placements, reference, options))
+        .zip(solved)
+        .zip(placed)
+        .map(|((cam, cal), frame)| {
+            let (rig, axis) = frame.ok_or_else(|| {
+                named(
+                    &cam.camera,
+                    ProcessingError::IllPosed {
+                        what: "rig frame",
+                        why: "the camera shares no placement with a camera placed in the rig frame; add a placement both see".into(),
+                    },
+                )
+            })?;
+            Ok(CameraGeometry {
+                camera: cam.camera.clone(),
+                model: cal.model,
+                rig_to_camera: rig,
+                centre_mm: rig.centre().into(),
+                rms_px: cal.rms_px,
+                view_rms_px: cam.views.iter().map(|(p, _)| *p).zip(cal.view_rms_px).collect(),
+                std: cal.std,
+                axis,
+            })
+        })
         .collect()
 }
 
-fn calibrate_one(
+fn named(camera: &str, e: ProcessingError) -> ProcessingError {
+    ProcessingError::IllPosed {
+        what: "camera calibration",
+        why: format!("camera `{camera}`: {e}"),
+    }
+}
+
+/// The rig frame from the camera's own flat views, if it has enough of them.
+fn own_rig_frame(
     cam: &CameraViews,
+    cal: &CameraCalibration,
     placements: &[Placement],
     reference: usize,
-    options: CalibrationOptions,
-) -> Result<CameraGeometry, ProcessingError> {
-    let named = |e: ProcessingError| ProcessingError::IllPosed {
-        what: "camera calibration",
-        why: format!("camera `{}`: {e}", cam.camera),
-    };
-    let views: Vec<BoardView> = cam.views.iter().map(|(_, v)| v.clone()).collect();
-    let CameraCalibration {
-        model,
-        poses,
-        rms_px,
-        view_rms_px,
-        std,
-        ..
-    } = calibrate_camera(&views, cam.width, cam.height, options).map_err(named)?;
+) -> Option<(Pose, TurntableAxis)> {
     let flat: Vec<Pose> = cam
         .views
         .iter()
-        .zip(&poses)
+        .zip(&cal.poses)
         .filter(|((p, _), _)| placements.get(*p).is_some_and(|p| p.flat))
         .map(|(_, pose)| *pose)
         .collect();
-    let axis = turntable_axis(&flat).map_err(named)?;
     let reference_pose = cam
         .views
         .iter()
-        .zip(&poses)
+        .zip(&cal.poses)
         .find(|((p, _), _)| *p == reference)
-        .map(|(_, pose)| *pose)
-        .ok_or_else(|| {
-            named(ProcessingError::IllPosed {
-                what: "rig frame",
-                why: "the camera did not see the reference placement (flat at turntable 0°)".into(),
-            })
-        })?;
-    let rig = rig_to_camera(&axis, &reference_pose).map_err(named)?;
-    let centre: Vector3<f64> = rig.centre();
-    Ok(CameraGeometry {
-        camera: cam.camera.clone(),
-        model,
-        rig_to_camera: rig,
-        centre_mm: centre.into(),
-        rms_px,
-        view_rms_px: cam.views.iter().map(|(p, _)| *p).zip(view_rms_px).collect(),
-        std,
-        axis,
-    })
+        .map(|(_, pose)| *pose)?;
+    let axis = turntable_axis(&flat).ok()?;
+    let rig = rig_to_camera(&axis, &reference_pose).ok()?;
+    Some((rig, axis))
+}
+
+/// The unplaced camera best placed through a placed one: (its index, rig → camera, axis).
+fn best_chain(
+    cameras: &[CameraViews],
+    solved: &[CameraCalibration],
+    placed: &[Option<(Pose, TurntableAxis)>],
+) -> Option<(usize, (Pose, TurntableAxis))> {
+    let mut best: Option<(f64, usize, Pose, TurntableAxis)> = None;
+    for (b, cam_b) in cameras.iter().enumerate() {
+        if placed[b].is_some() {
+            continue;
+        }
+        for (a, cam_a) in cameras.iter().enumerate() {
+            let Some((rig_a, axis_a)) = &placed[a] else {
+                continue;
+            };
+            for (ib, (pb, _)) in cam_b.views.iter().enumerate() {
+                let Some(ia) = cam_a.views.iter().position(|(pa, _)| pa == pb) else {
+                    continue;
+                };
+                let cost = solved[a].view_rms_px[ia] + solved[b].view_rms_px[ib];
+                if best.as_ref().is_some_and(|(c, ..)| *c <= cost) {
+                    continue;
+                }
+                // camera A → camera B through the board of the shared placement.
+                let a_to_b = solved[b].poses[ib].after(&solved[a].poses[ia].inverse());
+                let rig_b = a_to_b.after(rig_a);
+                let mut axis = TurntableAxis {
+                    point: a_to_b.transform(&Vector3::from(axis_a.point)).into(),
+                    direction: (a_to_b.rotation_matrix() * Vector3::from(axis_a.direction)).into(),
+                    ..*axis_a
+                };
+                // Pointing towards the camera, as the camera's own fit would.
+                if Vector3::from(axis.direction).dot(&Vector3::from(axis.point)) > 0.0 {
+                    axis.direction = (-Vector3::from(axis.direction)).into();
+                }
+                best = Some((cost, b, rig_b, axis));
+            }
+        }
+    }
+    best.map(|(_, b, rig, axis)| (b, (rig, axis)))
 }
 
 #[cfg(test)]
@@ -248,6 +317,31 @@ mod tests {
             assert!(err < 0.01, "{}: centre off by {err} mm", g.camera);
             assert!(g.rms_px < 1e-3);
         }
+        // A grazing camera that never saw the flat board is placed through cam1 and the
+        // tilted placements both saw.
+        let mut grazing = cameras[0].clone();
+        grazing.camera = "cam0".into();
+        let rig0 = look_at(640.0, 6.0, -10.0);
+        grazing.views.retain(|(p, _)| !placements[*p].flat);
+        for (p, view) in &mut grazing.views {
+            let pose = compose(&rig0, &board_to_rig[*p]);
+            for (pt, img) in view.board.iter().zip(&mut view.image) {
+                let q = model
+                    .project(&pose, &Vector3::new(pt.0, pt.1, 0.0))
+                    .unwrap();
+                *img = (q.x, q.y);
+            }
+        }
+        let with_grazing = [cameras[0].clone(), grazing.clone()];
+        let out =
+            calibrate_geometry(&placements, &with_grazing, CalibrationOptions::default()).unwrap();
+        let err = (Vector3::from(out[1].centre_mm) - rig0.centre()).norm();
+        assert!(err < 0.01, "chained camera off by {err} mm");
+        // Alone it cannot be placed: the error names it.
+        let e = calibrate_geometry(&placements, &[grazing], CalibrationOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("no camera saw the board flat"), "{e}");
         // Without the reference placement the rig frame is undefined.
         let no_ref: Vec<Placement> = placements
             .iter()

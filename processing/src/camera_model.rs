@@ -101,6 +101,21 @@ impl Pose {
     pub fn centre(&self) -> Vector3<f64> {
         -(self.rotation_matrix().transpose() * Vector3::from(self.translation))
     }
+
+    /// `self` after `first`: the transform that applies `first`, then `self`.
+    pub fn after(&self, first: &Pose) -> Pose {
+        let r = self.rotation_matrix();
+        Pose::from_parts(
+            &(r * first.rotation_matrix()),
+            r * Vector3::from(first.translation) + Vector3::from(self.translation),
+        )
+    }
+
+    /// The inverse transform (camera → world).
+    pub fn inverse(&self) -> Pose {
+        let rt = self.rotation_matrix().transpose();
+        Pose::from_parts(&rt, -(rt * Vector3::from(self.translation)))
+    }
 }
 
 /// A calibrated camera: intrinsics and distortion.

@@ -292,45 +292,52 @@ fn order_grid(
     if grid.len() != ni * nj {
         return None;
     }
-    // Cell (a, b) in board order → grid cell, for each of the 8 orientations.
-    let transpose = if (ni, nj) == (spec.cols, spec.rows) {
-        false
-    } else if (nj, ni) == (spec.cols, spec.rows) {
-        true
-    } else {
-        return None;
+    // Cell (a, b) in board order → grid cell, for each of the 8 orientations. A square board
+    // (cols = rows) fits the grid either way round, so both ways are tried: a board turned a
+    // quarter on the turntable is found only the other way round.
+    let transposes: &[bool] = match (
+        (ni, nj) == (spec.cols, spec.rows),
+        (nj, ni) == (spec.cols, spec.rows),
+    ) {
+        (true, true) => &[false, true],
+        (true, false) => &[false],
+        (false, true) => &[true],
+        (false, false) => return None,
     };
     let (cols, rows) = (spec.cols as i32, spec.rows as i32);
-    let corner = |a: i32, b: i32, flip_a: bool, flip_b: bool| {
-        let a = if flip_a { cols - 1 - a } else { a };
-        let b = if flip_b { rows - 1 - b } else { b };
-        let cell = if transpose {
-            (imin + b, jmin + a)
-        } else {
-            (imin + a, jmin + b)
+    for &transpose in transposes {
+        let corner = |a: i32, b: i32, flip_a: bool, flip_b: bool| {
+            let a = if flip_a { cols - 1 - a } else { a };
+            let b = if flip_b { rows - 1 - b } else { b };
+            let cell = if transpose {
+                (imin + b, jmin + a)
+            } else {
+                (imin + a, jmin + b)
+            };
+            points[grid[&cell]]
         };
-        points[grid[&cell]]
-    };
-    for (flip_a, flip_b) in [(false, false), (true, true), (true, false), (false, true)] {
-        let o = corner(0, 0, flip_a, flip_b);
-        let x = corner(1, 0, flip_a, flip_b);
-        let y = corner(0, 1, flip_a, flip_b);
-        let (ux, uy) = ((x.0 - o.0, x.1 - o.1), (y.0 - o.0, y.1 - o.1));
-        // Seen from the front: board x then y turn clockwise in the image (y down).
-        if ux.0 * uy.1 - ux.1 * uy.0 <= 0.0 {
-            continue;
+        for (flip_a, flip_b) in [(false, false), (true, true), (true, false), (false, true)] {
+            let o = corner(0, 0, flip_a, flip_b);
+            let x = corner(1, 0, flip_a, flip_b);
+            let y = corner(0, 1, flip_a, flip_b);
+            let (ux, uy) = ((x.0 - o.0, x.1 - o.1), (y.0 - o.0, y.1 - o.1));
+            // Seen from the front: board x then y turn clockwise in the image (y down).
+            if ux.0 * uy.1 - ux.1 * uy.0 <= 0.0 {
+                continue;
+            }
+            // The square diagonally outside corner (0, 0) is dark; its neighbour along x is
+            // light.
+            let outside = smooth.sample(o.0 - 0.5 * (ux.0 + uy.0), o.1 - 0.5 * (ux.1 + uy.1));
+            let beside = smooth.sample(o.0 + 0.5 * (ux.0 - uy.0), o.1 + 0.5 * (ux.1 - uy.1));
+            if outside >= beside {
+                continue;
+            }
+            let ordered = (0..rows)
+                .flat_map(|b| (0..cols).map(move |a| (a, b)))
+                .map(|(a, b)| corner(a, b, flip_a, flip_b))
+                .collect();
+            return Some(ordered);
         }
-        // The square diagonally outside corner (0, 0) is dark; its neighbour along x is light.
-        let outside = smooth.sample(o.0 - 0.5 * (ux.0 + uy.0), o.1 - 0.5 * (ux.1 + uy.1));
-        let beside = smooth.sample(o.0 + 0.5 * (ux.0 - uy.0), o.1 + 0.5 * (ux.1 - uy.1));
-        if outside >= beside {
-            continue;
-        }
-        let ordered = (0..rows)
-            .flat_map(|b| (0..cols).map(move |a| (a, b)))
-            .map(|(a, b)| corner(a, b, flip_a, flip_b))
-            .collect();
-        return Some(ordered);
     }
     None
 }

@@ -33,6 +33,7 @@ pub mod camera_model;
 pub mod checkerboard;
 pub mod corner_subpix;
 pub mod error;
+pub mod geometry_calibration;
 pub mod gray_image;
 pub mod hdr_frame;
 pub mod homography;

@@ -5,7 +5,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use stagehand_dataset::png16::decode_png16;
+use stagehand_dataset::png16::{DecodedPng, decode_png16};
 use stagehand_dataset::{FrameKind, FrameMeta, FrameQuery, RunReader, StoredFrame};
 
 use crate::error::ProcessingError;
@@ -34,7 +34,9 @@ pub struct DecodedExposure {
     pub path: String,
 }
 
-fn dataset_err(run: &Path) -> impl Fn(stagehand_dataset::StorageError) -> ProcessingError + '_ {
+pub(crate) fn dataset_err(
+    run: &Path,
+) -> impl Fn(stagehand_dataset::StorageError) -> ProcessingError + '_ {
     move |e| ProcessingError::Dataset {
         run: run.display().to_string(),
         message: e.to_string(),
@@ -79,27 +81,42 @@ pub fn bracket_keys(
         .collect())
 }
 
+/// Decodes one raw frame, naming it (and what to do) when it cannot be read.
+pub fn decode_frame(reader: &RunReader, f: &StoredFrame) -> Result<DecodedPng, ProcessingError> {
+    let run = reader.dir();
+    let path = run.join(&f.path);
+    let bytes = std::fs::read(&path).map_err(|e| ProcessingError::Dataset {
+        run: run.display().to_string(),
+        message: format!(
+            "frame {} (step {}, camera {}) cannot be read: {e}; run `stagehand verify` on the run",
+            f.path, f.meta.step, f.meta.camera
+        ),
+    })?;
+    let png = decode_png16(&f.path, &bytes).map_err(dataset_err(run))?;
+    if (png.width, png.height) != (f.meta.width, f.meta.height) {
+        return Err(ProcessingError::Dataset {
+            run: run.display().to_string(),
+            message: format!(
+                "frame {} is {}×{} but the index says {}×{}",
+                f.path, png.width, png.height, f.meta.width, f.meta.height
+            ),
+        });
+    }
+    Ok(png)
+}
+
 /// Decodes the frames of `key`, checking each file's size against the capture's.
 pub fn decode_bracket(
     reader: &RunReader,
     key: &BracketKey,
 ) -> Result<Vec<DecodedExposure>, ProcessingError> {
-    let run = reader.dir();
     key.frames
         .iter()
         .map(|f| {
-            let path = run.join(&f.path);
-            let bytes = std::fs::read(&path).map_err(|e| ProcessingError::Dataset {
-                run: run.display().to_string(),
-                message: format!(
-                    "frame {} (step {}, camera {}) cannot be read: {e}; run `stagehand verify` on the run",
-                    f.path, f.meta.step, f.meta.camera
-                ),
-            })?;
-            let png = decode_png16(&f.path, &bytes).map_err(dataset_err(run))?;
+            let png = decode_frame(reader, f)?;
             if (png.width, png.height) != (key.meta.width, key.meta.height) {
                 return Err(ProcessingError::Dataset {
-                    run: run.display().to_string(),
+                    run: reader.dir().display().to_string(),
                     message: format!(
                         "frame {} is {}×{} but its capture is {}×{}",
                         f.path, png.width, png.height, key.meta.width, key.meta.height

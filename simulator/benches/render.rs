@@ -180,6 +180,7 @@ fn world(scene: &str, turntable_deg: f64) -> WorldSnapshot {
         }),
         cart_mm: 0.0,
         fixture: "bumps".into(),
+        fixture_pose: Default::default(),
     }
 }
 

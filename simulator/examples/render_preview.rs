@@ -236,6 +236,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 }),
                 cart_mm: v.cart_mm,
                 fixture: v.fixture.to_string(),
+                fixture_pose: Default::default(),
             };
             let frame = renderer.render(&world, v.camera, v.exposure_s, 1.0, 1)?;
             let path = dir.join(format!("{}.png", v.name));

@@ -90,6 +90,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }),
             cart_mm: 0.0,
             fixture: fixture.to_string(),
+            fixture_pose: Default::default(),
         };
         // The first frame builds and caches the sample.
         let start = Instant::now();

@@ -5,6 +5,7 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, MutexGuard};
 
 use stagehand_devices::clock::RigClock;
+use stagehand_devices::fixture_pose::FixturePose;
 use stagehand_devices::motion::Trapezoid;
 use stagehand_devices::rig::RigSpec;
 use tokio::sync::broadcast;
@@ -62,6 +63,7 @@ struct State {
     /// Direction (+1/-1) and start (time, position) of a cart run in progress.
     cart_run: Option<(f64, f64, f64)>,
     fixture: String,
+    fixture_pose: FixturePose,
     exposing_until_s: f64,
     violations: Vec<String>,
     /// Frames each camera must still drop (fault injection, see [`World::stall_camera`]).
@@ -232,14 +234,17 @@ impl World {
         s.laser_mount_deg = mount_deg;
     }
 
-    /// The operator placed `fixture` on the stage.
-    pub fn place_fixture(&self, fixture: &str) {
-        self.lock().fixture = fixture.to_string();
+    /// The operator placed `fixture` on the stage, as `pose` says.
+    pub fn place_fixture(&self, fixture: &str, pose: FixturePose) {
+        let mut s = self.lock();
+        s.fixture = fixture.to_string();
+        s.fixture_pose = pose;
     }
 
-    /// What lies on the stage now.
-    pub fn fixture(&self) -> String {
-        self.lock().fixture.clone()
+    /// What lies on the stage now, and how it was placed.
+    pub fn fixture(&self) -> (String, FixturePose) {
+        let s = self.lock();
+        (s.fixture.clone(), s.fixture_pose)
     }
 
     pub(crate) fn cart_drive(&self, direction: f64, t: f64) {
@@ -355,6 +360,7 @@ impl World {
             laser,
             cart_mm: Self::cart_at(&s, &self.rig, t),
             fixture: s.fixture.clone(),
+            fixture_pose: s.fixture_pose,
         }
     }
 }

@@ -3,6 +3,7 @@
 use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
+use stagehand_devices::fixture_pose::FixturePose;
 
 /// The laser while it emits.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -29,4 +30,7 @@ pub struct WorldSnapshot {
     /// What lies on the stage: the rig's `sim.sample` or a fixture an operator placed
     /// (checkerboard, colorchecker, planes, or a procedural sample name).
     pub fixture: String,
+    /// How the fixture was placed on the turntable (flat and centred unless a prompt said).
+    #[serde(default)]
+    pub fixture_pose: FixturePose,
 }

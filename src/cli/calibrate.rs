@@ -27,6 +27,24 @@ pub enum CalibrateCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Each camera's intrinsics, lens distortion and place in the rig frame (Zhang, then
+    /// Levenberg–Marquardt) from a checkerboard run (sequences/calibration_checkerboard.rhai).
+    Geometry {
+        /// The run with the checkerboard placements.
+        run_dir: PathBuf,
+        /// Inner corners of the board, COLSxROWS (both odd tells a board turned half way).
+        #[arg(long, default_value = "7x7", value_parser = super::calibrate_geometry::parse_corners)]
+        corners: (usize, usize),
+        /// Side of a board square, millimetres.
+        #[arg(long, default_value_t = 10.0)]
+        square_mm: f64,
+        /// Fit the r⁶ radial distortion term k3 too (for lenses whose distortion reaches far).
+        #[arg(long)]
+        fit_k3: bool,
+        /// Print the stored calibration as JSON.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 /// Subcommands of `stagehand calibrations`.
@@ -48,20 +66,20 @@ pub enum CalibrationsCommand {
     },
 }
 
-fn store_err(e: calibration_store::CalibrationStoreError) -> SessionError {
+pub(super) fn store_err(e: calibration_store::CalibrationStoreError) -> SessionError {
     SessionError::Io(e.to_string())
 }
 
-fn processing_err(e: stagehand_processing::ProcessingError) -> SessionError {
+pub(super) fn processing_err(e: stagehand_processing::ProcessingError) -> SessionError {
     SessionError::Io(e.to_string())
 }
 
 /// The calibrations directory for a run: beside it, in its dataset root.
-fn root_of(run_dir: &Path) -> PathBuf {
+pub(super) fn root_of(run_dir: &Path) -> PathBuf {
     calibrations_dir(run_dir.parent().unwrap_or(Path::new(".")))
 }
 
-fn run_id(run_dir: &Path) -> String {
+pub(super) fn run_id(run_dir: &Path) -> String {
     run_dir
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
@@ -71,6 +89,15 @@ fn run_id(run_dir: &Path) -> String {
 /// Runs `stagehand calibrate …`.
 pub fn calibrate(command: CalibrateCommand) -> Result<i32, SessionError> {
     match command {
+        CalibrateCommand::Geometry {
+            run_dir,
+            corners,
+            square_mm,
+            fit_k3,
+            json,
+        } => super::calibrate_geometry::calibrate_geometry(
+            &run_dir, corners, square_mm, fit_k3, json,
+        ),
         CalibrateCommand::Response {
             run_dir,
             smoothness,

@@ -50,6 +50,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use serde::{Deserialize, Serialize};
+use stagehand_devices::fixture_pose::FixturePose;
 use stagehand_devices::motion;
 use stagehand_devices::rig::RigSpec;
 use stagehand_simulator::render::config::SimSpec;
@@ -146,6 +147,9 @@ pub struct RigState {
     pub cart_mm: f64,
     /// What lies on the stage: the rig's `sim.sample` or the fixture an operator placed.
     pub fixture: String,
+    /// How the fixture was placed (flat and centred unless a prompt said otherwise).
+    #[serde(default)]
+    pub fixture_pose: FixturePose,
 }
 
 impl RigState {
@@ -166,6 +170,7 @@ impl RigState {
             laser_mount_deg: rig.laser.as_ref().map_or(0.0, |l| l.mount_elevation_deg),
             cart_mm: 0.0,
             fixture: SimSpec::sample_of(rig),
+            fixture_pose: FixturePose::default(),
         }
     }
 
@@ -227,12 +232,16 @@ impl RigState {
             }
             Action::Prompt {
                 fixture,
+                placement,
                 laser_mount_deg,
                 laser_fit_nm,
                 ..
             } => {
                 if let Some(fixture) = fixture {
                     self.fixture = fixture.clone();
+                    self.fixture_pose = placement.unwrap_or_default();
+                } else if let Some(pose) = placement {
+                    self.fixture_pose = *pose;
                 }
                 if let Some(laser) = &rig.laser {
                     if let Some(mount) = laser_mount_deg

@@ -247,6 +247,7 @@ fn prompts_cost_no_rig_time() {
     let prompt = Action::Prompt {
         message: "place".into(),
         fixture: Some("planes".into()),
+        placement: None,
         laser_mount_deg: None,
         laser_fit_nm: None,
     };
@@ -264,6 +265,7 @@ fn state_before_folds_earlier_steps() {
         Action::Prompt {
             message: "fit".into(),
             fixture: Some("checkerboard".into()),
+            placement: None,
             laser_mount_deg: Some(30.0),
             laser_fit_nm: Some(532),
         },
@@ -428,6 +430,7 @@ fn any_action() -> impl Strategy<Value = Action> {
         Just(Action::Prompt {
             message: String::new(),
             fixture: None,
+            placement: None,
             laser_mount_deg: None,
             laser_fit_nm: Some(532)
         }),

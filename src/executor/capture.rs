@@ -230,14 +230,16 @@ async fn verify_state(ex: &Execution, live: &Live) -> Result<(), DeviceError> {
         }
     }
     if let Some(w) = &rig.world {
-        let on_stage = w.fixture();
-        if on_stage != want.fixture {
+        let (on_stage, pose) = w.fixture();
+        if on_stage != want.fixture || pose != want.fixture_pose {
             return Err(DeviceError::new(
                 "stage",
                 DeviceErrorKind::StateLost {
                     message: format!(
-                        "`{on_stage}` is on the stage but the plan has `{}`",
-                        want.fixture
+                        "`{on_stage}` ({}) is on the stage but the plan has `{}` ({})",
+                        pose.describe(),
+                        want.fixture,
+                        want.fixture_pose.describe()
                     ),
                 },
             ));
@@ -336,6 +338,7 @@ fn metadata(
         laser_tilt_deg: tilt,
         laser_mount_deg: laser.map(|l| l.mount_elevation_deg),
         fixture: live.state.fixture.clone(),
+        fixture_pose: live.state.fixture_pose,
         cart_mm: rig.cart.as_ref().map(|c| c.position_mm()),
         rig_time_s: frame.rig_time_s,
         wall_time_unix_s: wall_now(),

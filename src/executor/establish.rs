@@ -31,7 +31,7 @@ pub(super) async fn establish(
         .collect::<Result<_, _>>()?;
     try_all(moves.iter().map(|(h, deg)| h.move_to(*deg))).await?;
     if let Some(w) = &rig.world {
-        w.place_fixture(&state.fixture);
+        w.place_fixture(&state.fixture, state.fixture_pose);
     }
     if let Some(l) = &rig.laser {
         l.fitted(state.laser_fitted_nm, state.laser_mount_deg)
@@ -98,7 +98,7 @@ pub(super) async fn adopt(rig: &Rig, live: &mut Live) -> Result<(), DeviceError>
         state.cart_mm = c.position_mm();
     }
     if let Some(w) = &rig.world {
-        state.fixture = w.fixture();
+        (state.fixture, state.fixture_pose) = w.fixture();
     }
     let now = rig.clock.now_s();
     live.lamp_on_since = state.lamps_on.iter().map(|id| (id.clone(), now)).collect();

@@ -480,20 +480,31 @@ impl Execution {
             Action::Prompt {
                 message,
                 fixture,
+                placement,
                 laser_mount_deg,
                 laser_fit_nm,
             } => {
+                // The operator reads the placement asked for, not only the script's words.
+                let message = match placement {
+                    Some(pose) => format!("{message} [placement: {}]", pose.describe()),
+                    None => message.clone(),
+                };
                 self.emit(Event::Prompt {
                     step: step.index,
                     message: message.clone(),
                 });
-                if self.operator.confirm(step.index, message).await == Answer::Abort {
+                if self.operator.confirm(step.index, &message).await == Answer::Abort {
                     return Err(StepFailure::Aborted);
                 }
-                if let Some(f) = fixture {
-                    live.state.fixture = f.clone();
+                if fixture.is_some() || placement.is_some() {
+                    if let Some(f) = fixture {
+                        live.state.fixture = f.clone();
+                        live.state.fixture_pose = placement.unwrap_or_default();
+                    } else if let Some(pose) = placement {
+                        live.state.fixture_pose = *pose;
+                    }
                     if let Some(w) = &rig.world {
-                        w.place_fixture(f);
+                        w.place_fixture(&live.state.fixture, live.state.fixture_pose);
                     }
                 }
                 if laser_mount_deg.is_some() || laser_fit_nm.is_some() {

@@ -3,6 +3,7 @@
 //! [`Fail::Api`](super::builder::Fail::Api) saying what was expected and what came.
 
 use rhai::{Dynamic, ImmutableString, Map};
+use stagehand_devices::fixture_pose::FixturePose;
 
 use super::builder::{Res, api};
 use super::params::describe;
@@ -133,6 +134,37 @@ pub(crate) fn camera_list(v: &Dynamic) -> Res<Vec<String>> {
 }
 
 /// An options map: every key must be in `optional` or `required`, and every required key present.
+/// A fixture placement `#{tilt_deg, tilt_toward_deg, turn_deg, x_mm, y_mm, lift_mm}` (every
+/// key optional, 0 when left out), checked for sense.
+pub(crate) fn fixture_pose(v: &Dynamic) -> Res<FixturePose> {
+    let keys = [
+        "tilt_deg",
+        "tilt_toward_deg",
+        "turn_deg",
+        "x_mm",
+        "y_mm",
+        "lift_mm",
+    ];
+    let map = options(v, &keys, &[])?;
+    let mut pose = FixturePose::default();
+    for (key, v) in map.iter() {
+        let value = number(key, v)?;
+        let field = match key.as_str() {
+            "tilt_deg" => &mut pose.tilt_deg,
+            "tilt_toward_deg" => &mut pose.tilt_toward_deg,
+            "turn_deg" => &mut pose.turn_deg,
+            "x_mm" => &mut pose.x_mm,
+            "y_mm" => &mut pose.y_mm,
+            _ => &mut pose.lift_mm,
+        };
+        *field = value;
+    }
+    match pose.problem() {
+        Some(problem) => api(format!("placement: {problem}")),
+        None => Ok(pose),
+    }
+}
+
 pub(crate) fn options(v: &Dynamic, optional: &[&str], required: &[&str]) -> Res<Map> {
     let Ok(map) = v.as_map_ref() else {
         return api(format!(

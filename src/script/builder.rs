@@ -10,8 +10,8 @@ use rhai::Dynamic;
 use stagehand_devices::rig::{LampKind, RigSpec};
 
 use super::args::{
-    boolean, camera_list, exposure_list, ids, integer, non_negative, number, options, string,
-    strings, wavelength,
+    boolean, camera_list, exposure_list, fixture_pose, ids, integer, non_negative, number, options,
+    string, strings, wavelength,
 };
 use super::error::ScriptError;
 use super::params::{describe, kind_of, normalise, parse_value, to_json, valid_name};
@@ -494,13 +494,19 @@ impl Builder {
     ) -> Res<()> {
         let message = string("the message", &message)?;
         let mut fixture = None;
+        let mut placement = None;
         let mut laser_mount_deg = None;
         let mut laser_fit_nm = None;
         if let Some(opts) = opts {
-            let map = options(&opts, &["fixture", "laser_mount_deg", "laser_fit_nm"], &[])?;
+            let map = options(
+                &opts,
+                &["fixture", "placement", "laser_mount_deg", "laser_fit_nm"],
+                &[],
+            )?;
             for (key, v) in map.iter() {
                 match key.as_str() {
                     "fixture" => fixture = Some(string("fixture", v)?),
+                    "placement" => placement = Some(fixture_pose(v)?),
                     "laser_mount_deg" => laser_mount_deg = Some(number("laser_mount_deg", v)?),
                     _ => laser_fit_nm = Some(wavelength("laser_fit_nm", v)?),
                 }
@@ -514,6 +520,7 @@ impl Builder {
             Action::Prompt {
                 message,
                 fixture,
+                placement,
                 laser_mount_deg,
                 laser_fit_nm,
             },

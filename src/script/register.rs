@@ -32,7 +32,9 @@ fn usage(name: &str) -> &'static str {
             "laser_sweep(#{from_deg: -4, to_deg: 4, lines: 64, rate_hz: 7.5, exposure_s: 0.002})"
         }
         "cart_to" => "cart_to(120.0)",
-        "prompt" => "prompt(\"Place the checkerboard\", #{fixture: \"checkerboard\"})",
+        "prompt" => {
+            "prompt(\"Tilt the checkerboard\", #{fixture: \"checkerboard\", placement: #{tilt_deg: 30.0}})"
+        }
         "wait" => "wait(2.0)",
         _ => "see sequences/README.md",
     }

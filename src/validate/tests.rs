@@ -55,6 +55,7 @@ fn prompt(fixture: Option<&str>, mount: Option<f64>, fit: Option<u32>) -> Action
     Action::Prompt {
         message: "do it".into(),
         fixture: fixture.map(str::to_string),
+        placement: None,
         laser_mount_deg: mount,
         laser_fit_nm: fit,
     }

@@ -142,6 +142,7 @@ impl Setup {
             laser: None,
             cart_mm: 0.0,
             fixture: options.scene.clone(),
+            fixture_pose: Default::default(),
         };
         let dark = WorldSnapshot {
             lamps: BTreeMap::new(),

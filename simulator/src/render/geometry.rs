@@ -4,7 +4,8 @@
 
 use std::collections::BTreeMap;
 
-use glam::Vec3A;
+use glam::{Mat3A, Vec3A};
+use stagehand_devices::fixture_pose::FixturePose;
 use stagehand_devices::lens::{BrownConrady, Intrinsics};
 use stagehand_devices::rig::{AxisRole, CameraSpec, RigSpec};
 
@@ -33,30 +34,67 @@ impl RigAngles {
     }
 }
 
-/// Rotation from the world frame into the sample frame (by −θt about z).
+/// From the world frame into the sample frame: by −θt about z (the turntable), then into the
+/// fixture's own frame when it was placed tilted, turned or shifted ([`FixturePose`]). Points
+/// and directions differ only when the fixture is shifted.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ToSample {
     cos: f32,
     sin: f32,
+    /// The placement's inverse rotation and its centre in the turntable frame; `None` when the
+    /// fixture lies flat and centred (the turntable rotation alone, bit for bit as before).
+    placed: Option<(Mat3A, Vec3A)>,
 }
 
 impl ToSample {
-    /// The rotation for turntable angle `turntable_deg`.
+    /// The rotation for turntable angle `turntable_deg`, the fixture flat and centred.
     pub fn new(turntable_deg: f64) -> ToSample {
         let a = -turntable_deg.to_radians();
         ToSample {
             cos: a.cos() as f32,
             sin: a.sin() as f32,
+            placed: None,
         }
     }
 
-    /// Rotates a world point or direction into the sample frame.
-    pub fn apply(&self, v: Vec3A) -> Vec3A {
+    /// The transform for turntable angle `turntable_deg` with the fixture placed as `pose`.
+    pub fn placed(turntable_deg: f64, pose: &FixturePose) -> ToSample {
+        let mut t = ToSample::new(turntable_deg);
+        if !pose.is_flat_centred() {
+            let r = pose.rotation();
+            // Columns of Rᵀ are the rows of R.
+            let col = |i: usize| Vec3A::new(r[i][0] as f32, r[i][1] as f32, r[i][2] as f32);
+            let o = pose.offset_mm();
+            t.placed = Some((
+                Mat3A::from_cols(col(0), col(1), col(2)),
+                Vec3A::new(o[0] as f32, o[1] as f32, o[2] as f32),
+            ));
+        }
+        t
+    }
+
+    fn turn(&self, v: Vec3A) -> Vec3A {
         Vec3A::new(
             self.cos * v.x - self.sin * v.y,
             self.sin * v.x + self.cos * v.y,
             v.z,
         )
+    }
+
+    /// A world point in the sample frame.
+    pub fn point(&self, p: Vec3A) -> Vec3A {
+        match &self.placed {
+            None => self.turn(p),
+            Some((r_inv, centre)) => *r_inv * (self.turn(p) - *centre),
+        }
+    }
+
+    /// A world direction in the sample frame.
+    pub fn dir(&self, v: Vec3A) -> Vec3A {
+        match &self.placed {
+            None => self.turn(v),
+            Some((r_inv, _)) => *r_inv * self.turn(v),
+        }
     }
 }
 
@@ -151,10 +189,10 @@ impl CameraPose {
         }
         let intrinsics = Intrinsics::of(spec);
         CameraPose {
-            origin: to_sample.apply(pos),
-            forward: to_sample.apply(forward),
-            right: to_sample.apply(right),
-            up: to_sample.apply(up),
+            origin: to_sample.point(pos),
+            forward: to_sample.dir(forward),
+            right: to_sample.dir(right),
+            up: to_sample.dir(up),
             focal_px: intrinsics.focal_px as f32,
             width: spec.width,
             height: spec.height,
@@ -387,7 +425,7 @@ mod tests {
 
     #[test]
     fn turntable_moves_devices_the_other_way_in_the_sample_frame() {
-        let p = ToSample::new(90.0).apply(spherical(0.0, 0.0, 100.0));
+        let p = ToSample::new(90.0).point(spherical(0.0, 0.0, 100.0));
         assert!((p - Vec3A::new(0.0, -100.0, 0.0)).length() < 1e-3, "{p}");
         let t = horizontal_tangent(0.0);
         let r = rotate_about(Vec3A::X, t, std::f32::consts::FRAC_PI_2);

@@ -131,7 +131,7 @@ impl Renderer {
         let sample = self.sample(&world.fixture)?;
         let knobs = self.knobs_for(&sample);
         let angles = RigAngles::from_world(&self.rig, &world.axes);
-        let to_sample = ToSample::new(angles.turntable_deg);
+        let to_sample = ToSample::placed(angles.turntable_deg, &world.fixture_pose);
         let pose = self.as_built().camera(&cam.id).pose(cam, to_sample);
         let tubes = lights::tube_bodies(&self.rig, world, to_sample);
         // Geometry only: no lights, no shading, no shadow maps.
@@ -241,6 +241,7 @@ mod tests {
             laser: None,
             cart_mm: 0.0,
             fixture: fixture.into(),
+            fixture_pose: Default::default(),
         }
     }
 
@@ -291,6 +292,51 @@ mod tests {
         assert_eq!(kinds, ["depth", "normal", "radiance", "material"]);
         assert_eq!(data.check(), Ok(()));
         assert_eq!(data.notes["depth"]["background"], 0.0);
+    }
+
+    #[test]
+    fn a_tilted_shifted_fixture_lies_in_its_placed_plane_in_the_world() {
+        use stagehand_devices::fixture_pose::FixturePose;
+        let rig = rig("checkerboard", 48, 36);
+        let renderer = Renderer::new(&rig).expect("renderer");
+        let pose = FixturePose {
+            tilt_deg: 30.0,
+            tilt_toward_deg: 120.0,
+            turn_deg: 20.0,
+            x_mm: 8.0,
+            y_mm: -5.0,
+            lift_mm: 12.0,
+        };
+        let mut w = world("checkerboard", &["lamp4"]);
+        w.fixture_pose = pose;
+        w.axes.insert("turntable".into(), 0.0);
+        let gt = renderer.ground_truth(&w, "cam4").expect("ground truth");
+        // cam4 in the world frame (turntable at 0°: the world and turntable frames agree).
+        let cam = CameraPose::new(rig.camera("cam4").expect("cam4"), ToSample::new(0.0));
+        let r = pose.rotation();
+        let normal = Vec3A::new(r[0][2] as f32, r[1][2] as f32, r[2][2] as f32);
+        let centre = Vec3A::new(8.0, -5.0, 12.0);
+        let mut hits = 0;
+        for i in 0..48 * 36 {
+            let d = gt.depth_mm[i];
+            if d == BACKGROUND_DEPTH {
+                continue;
+            }
+            hits += 1;
+            let (x, y) = ((i % 48) as f32 + 0.5, (i / 48) as f32 + 0.5);
+            let p = cam.origin + cam.ray(x, y) * d;
+            let off_plane = normal.dot(p - centre);
+            assert!(
+                off_plane.abs() < 0.05,
+                "pixel {i}: {off_plane} mm off the plane"
+            );
+        }
+        assert!(hits > 48 * 36 / 4, "{hits} hits");
+        // Flat and centred renders differently: the placement reaches the renderer.
+        let flat = renderer
+            .ground_truth(&world("checkerboard", &["lamp4"]), "cam4")
+            .expect("flat");
+        assert_ne!(flat.depth_mm, gt.depth_mm);
     }
 
     #[test]

@@ -60,10 +60,10 @@ impl LaserSheet {
         let width = spec.sheet_half_width_mm as f32;
         let rgb = camera_response(beam.colour_nm);
         LaserSheet {
-            origin: to_sample.apply(origin),
-            centre: to_sample.apply(centre),
-            fan_axis: to_sample.apply(t),
-            normal: to_sample.apply(normal),
+            origin: to_sample.point(origin),
+            centre: to_sample.point(centre),
+            fan_axis: to_sample.dir(t),
+            normal: to_sample.dir(normal),
             half_width_mm: width,
             peak: IRRADIANCE_PER_MW * spec.power_mw as f32 * REFERENCE_HALF_WIDTH_MM
                 / width.max(1.0e-3),

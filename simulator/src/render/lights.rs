@@ -164,7 +164,7 @@ pub fn lit_lamps(
             LampKind::Halogen => {
                 let world_pos =
                     spherical(angles.light_arc_deg, lamp.elevation_deg, lamp.distance_mm);
-                let centre = to_sample.apply(world_pos);
+                let centre = to_sample.point(world_pos);
                 let facing = (-centre).normalize_or(-Vec3A::Z);
                 let u = facing.any_orthonormal_vector();
                 let v = facing.cross(u);
@@ -180,8 +180,8 @@ pub fn lit_lamps(
                 )
             }
             LampKind::Tube => {
-                let centre = to_sample.apply(tube_centre(rig, world, lamp.distance_mm));
-                let axis = to_sample.apply(Vec3A::Y);
+                let centre = to_sample.point(tube_centre(rig, world, lamp.distance_mm));
+                let axis = to_sample.dir(Vec3A::Y);
                 let start = centre - axis * (0.5 * TUBE_LENGTH_MM);
                 // Infinite Lambertian line at height h gives E = π·per_mm / (2h) below it.
                 let per_mm = strength * 2.0 * TUBE_REFERENCE_HEIGHT_MM / std::f32::consts::PI;
@@ -225,8 +225,8 @@ pub fn tube_bodies(rig: &RigSpec, world: &WorldSnapshot, to_sample: ToSample) ->
         .iter()
         .filter(|l| l.kind == LampKind::Tube)
         .map(|l| TubeBody {
-            centre: to_sample.apply(tube_centre(rig, world, l.distance_mm)),
-            axis: to_sample.apply(Vec3A::Y),
+            centre: to_sample.point(tube_centre(rig, world, l.distance_mm)),
+            axis: to_sample.dir(Vec3A::Y),
         })
         .collect()
 }

@@ -280,7 +280,7 @@ impl Renderer {
         let sample = self.sample(&world.fixture)?;
         let knobs = self.knobs_for(&sample);
         let angles = RigAngles::from_world(&self.rig, &world.axes);
-        let to_sample = ToSample::new(angles.turntable_deg);
+        let to_sample = ToSample::placed(angles.turntable_deg, &world.fixture_pose);
         let pose = self.as_built.camera(&cam.id).pose(cam, to_sample);
         let (lights, unknown_lamps) =
             lights::lit_lamps(&self.rig, &self.as_built, world, angles, to_sample);

@@ -36,6 +36,7 @@ fn world(fixture: &str, lamps: &[(&str, f64)]) -> WorldSnapshot {
         laser: None,
         cart_mm: 0.0,
         fixture: fixture.into(),
+        fixture_pose: Default::default(),
     }
 }
 

@@ -351,6 +351,7 @@ fn an_albedo_map_shows_up_in_the_rendered_frame() {
         laser: None,
         cart_mm: 0.0,
         fixture: fixture.clone(),
+        fixture_pose: Default::default(),
     };
     let camera = rig.cameras[0].id.clone();
     let image = renderer.radiance(&world, &camera).expect("renders");
@@ -392,6 +393,7 @@ fn scene_render_settings_apply_on_top_of_the_rigs() {
         laser: None,
         cart_mm: 0.0,
         fixture,
+        fixture_pose: Default::default(),
     };
     let image = renderer
         .radiance(&world, &rig.cameras[0].id)

@@ -204,6 +204,7 @@ prompt("hello");
         &Action::Prompt {
             message: "swap".into(),
             fixture: Some("planes".into()),
+            placement: None,
             laser_mount_deg: Some(60.0),
             laser_fit_nm: Some(473),
         }
@@ -224,6 +225,7 @@ prompt("hello");
         &Action::Prompt {
             message: "hello".into(),
             fixture: None,
+            placement: None,
             laser_mount_deg: None,
             laser_fit_nm: None
         }

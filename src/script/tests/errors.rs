@@ -26,6 +26,14 @@ fn api_misuse_is_an_error_at_the_call() {
             "wait(1);\nprompt(\"x\", #{fixtrue: \"planes\"});",
             "unknown option `fixtrue`",
         ),
+        (
+            "wait(1);\nprompt(\"x\", #{fixture: \"checkerboard\", placement: #{tilt_deg: 95.0}});",
+            "placement: tilt_deg 95 is outside",
+        ),
+        (
+            "wait(1);\nprompt(\"x\", #{placement: #{tilt: 30.0}});",
+            "unknown option `tilt`",
+        ),
         ("wait(1);\ncapture([]);", "list of exposures is empty"),
         (
             "wait(1);\ncapture(\"fast\");",

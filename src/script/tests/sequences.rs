@@ -323,20 +323,32 @@ fn calibration_sequences() {
         &lightstage(),
         &[],
     );
-    assert_eq!(count(&p, "capture"), 8);
-    assert_eq!(p.raw_frames(), 64);
-    assert_eq!(p.steps.len(), 20);
+    assert_eq!(count(&p, "capture"), 15);
+    assert_eq!(p.raw_frames(), 120);
+    assert_eq!(p.steps.len(), 45);
     assert!(p.steps.iter().all(|s| match &s.action {
         Action::Prompt { fixture, .. } => fixture.as_deref() == Some("checkerboard"),
         _ => true,
     }));
+    // The first placement is flat and centred (the reference), the others tilted or moved.
+    let placements: Vec<_> = p
+        .steps
+        .iter()
+        .filter_map(|s| match &s.action {
+            Action::Prompt { placement, .. } => Some(placement.unwrap_or_default()),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(placements.len(), 10);
+    assert!(placements[0].is_flat_centred());
+    assert!(placements[1..].iter().all(|p| !p.is_flat_centred()));
     let p = sequence(
         "calibration_checkerboard.rhai",
         CHECKERBOARD,
         &lightstage(),
         &["placements=2"],
     );
-    assert_eq!(count(&p, "capture"), 2);
+    assert_eq!(count(&p, "capture"), 6);
 
     let p = sequence(
         "calibration_colorchecker.rhai",

@@ -143,6 +143,7 @@ fn world(fixture: &str, lamps: &[(&str, f64)], arc_deg: f64) -> WorldSnapshot {
         laser: None,
         cart_mm: 0.0,
         fixture: fixture.into(),
+        fixture_pose: Default::default(),
     }
 }
 
