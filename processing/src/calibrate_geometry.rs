@@ -56,16 +56,27 @@ pub struct CameraGeometry {
     pub axis: TurntableAxis,
 }
 
+/// What a geometric calibration found: the cameras it placed, and each camera it could not
+/// calibrate or place, with why (processing then refuses that camera's frames).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GeometrySolution {
+    /// The calibrated cameras in the rig frame.
+    pub cameras: Vec<CameraGeometry>,
+    /// (camera, why) for every camera left out.
+    pub failed: Vec<(String, String)>,
+}
+
 /// Calibrates every camera and places it in the rig frame. A camera that saw the board flat
 /// at three or more table angles, the reference among them, finds the turntable axis and the
 /// rig frame itself; any other (a grazing camera cannot see a flat board) is placed through a
 /// placement it shares with a placed camera: rig → B = (board → B) ∘ (board → A)⁻¹ ∘ (rig → A),
-/// over the shared placement with the smallest reprojection error in both.
+/// over the shared placement with the smallest reprojection error in both. A camera whose
+/// views leave it ill-posed is reported in `failed`, not guessed; no camera at all is an error.
 pub fn calibrate_geometry(
     placements: &[Placement],
     cameras: &[CameraViews],
     options: CalibrationOptions,
-) -> Result<Vec<CameraGeometry>, ProcessingError> {
+) -> Result<GeometrySolution, ProcessingError> {
     let reference = placements
         .iter()
         .position(|p| p.flat && p.table_deg.rem_euclid(360.0).abs() < 1e-6)
@@ -73,61 +84,67 @@ pub fn calibrate_geometry(
             what: "rig frame",
             why: "no placement has the board flat at turntable 0°; it defines the reference plane and the X axis".into(),
         })?;
-    let solved: Vec<CameraCalibration> = cameras
-        .iter()
-        .map(|cam| {
-            let views: Vec<BoardView> = cam.views.iter().map(|(_, v)| v.clone()).collect();
-            calibrate_camera(&views, cam.width, cam.height, options)
-                .map_err(|e| named(&cam.camera, e))
-        })
-        .collect::<Result<_, _>>()?;
-    let mut placed: Vec<Option<(Pose, TurntableAxis)>> = cameras
+    let mut failed = Vec::new();
+    let mut usable = Vec::new();
+    let mut solved = Vec::new();
+    for cam in cameras {
+        let views: Vec<BoardView> = cam.views.iter().map(|(_, v)| v.clone()).collect();
+        match calibrate_camera(&views, cam.width, cam.height, options) {
+            Ok(cal) => {
+                usable.push(cam.clone());
+                solved.push(cal);
+            }
+            Err(e) => failed.push((cam.camera.clone(), e.to_string())),
+        }
+    }
+    let mut placed: Vec<Option<(Pose, TurntableAxis)>> = usable
         .iter()
         .zip(&solved)
         .map(|(cam, cal)| own_rig_frame(cam, cal, placements, reference))
         .collect();
     if placed.iter().all(Option::is_none) {
+        let mut why =
+            "no camera saw the board flat at 3 or more turntable angles including 0°".to_string();
+        for (camera, e) in &failed {
+            why += &format!("; `{camera}`: {e}");
+        }
         return Err(ProcessingError::IllPosed {
             what: "rig frame",
-            why: "no camera saw the board flat at 3 or more turntable angles including 0°".into(),
+            why,
         });
     }
-    while let Some((b, frame)) = best_chain(cameras, &solved, &placed) {
+    while let Some((b, frame)) = best_chain(&usable, &solved, &placed) {
         placed[b] = Some(frame);
     }
-    cameras
-        .iter()
-        .zip(solved)
-        .zip(placed)
-        .map(|((cam, cal), frame)| {
-            let (rig, axis) = frame.ok_or_else(|| {
-                named(
-                    &cam.camera,
-                    ProcessingError::IllPosed {
-                        what: "rig frame",
-                        why: "the camera shares no placement with a camera placed in the rig frame; add a placement both see".into(),
-                    },
-                )
-            })?;
-            Ok(CameraGeometry {
-                camera: cam.camera.clone(),
-                model: cal.model,
-                rig_to_camera: rig,
-                centre_mm: rig.centre().into(),
-                rms_px: cal.rms_px,
-                view_rms_px: cam.views.iter().map(|(p, _)| *p).zip(cal.view_rms_px).collect(),
-                std: cal.std,
-                axis,
-            })
-        })
-        .collect()
-}
-
-fn named(camera: &str, e: ProcessingError) -> ProcessingError {
-    ProcessingError::IllPosed {
-        what: "camera calibration",
-        why: format!("camera `{camera}`: {e}"),
+    let mut out = Vec::new();
+    for ((cam, cal), frame) in usable.iter().zip(solved).zip(placed) {
+        let Some((rig, axis)) = frame else {
+            failed.push((
+                cam.camera.clone(),
+                "the camera shares no placement with a camera placed in the rig frame; add a placement both see".into(),
+            ));
+            continue;
+        };
+        out.push(CameraGeometry {
+            camera: cam.camera.clone(),
+            model: cal.model,
+            rig_to_camera: rig,
+            centre_mm: rig.centre().into(),
+            rms_px: cal.rms_px,
+            view_rms_px: cam
+                .views
+                .iter()
+                .map(|(p, _)| *p)
+                .zip(cal.view_rms_px)
+                .collect(),
+            std: cal.std,
+            axis,
+        });
     }
+    Ok(GeometrySolution {
+        cameras: out,
+        failed,
+    })
 }
 
 /// The rig frame from the camera's own flat views, if it has enough of them.
@@ -311,7 +328,9 @@ mod tests {
                     .collect(),
             })
             .collect();
-        let out = calibrate_geometry(&placements, &cameras, CalibrationOptions::default()).unwrap();
+        let out = calibrate_geometry(&placements, &cameras, CalibrationOptions::default())
+            .unwrap()
+            .cameras;
         for (g, (_, rig)) in out.iter().zip(&truth) {
             let err = (Vector3::from(g.centre_mm) - rig.centre()).norm();
             assert!(err < 0.01, "{}: centre off by {err} mm", g.camera);
@@ -333,8 +352,9 @@ mod tests {
             }
         }
         let with_grazing = [cameras[0].clone(), grazing.clone()];
-        let out =
-            calibrate_geometry(&placements, &with_grazing, CalibrationOptions::default()).unwrap();
+        let out = calibrate_geometry(&placements, &with_grazing, CalibrationOptions::default())
+            .unwrap()
+            .cameras;
         let err = (Vector3::from(out[1].centre_mm) - rig0.centre()).norm();
         assert!(err < 0.01, "chained camera off by {err} mm");
         // Alone it cannot be placed: the error names it.

@@ -29,10 +29,21 @@ fn camera(k1: f64) -> CameraModel {
 /// Renders the board (one square of white margin, grey background) seen through `cam` at
 /// `pose`, 8×8 supersampled with jitter, with a little deterministic noise.
 fn render(cam: &CameraModel, pose: &Pose, width: usize, height: usize) -> GrayImage {
+    render_board(&SPEC, cam, pose, width, height)
+}
+
+/// [`render`] for any board.
+fn render_board(
+    spec: &CheckerboardSpec,
+    cam: &CameraModel,
+    pose: &Pose,
+    width: usize,
+    height: usize,
+) -> GrayImage {
     let r = pose.rotation_matrix();
     let t = Vector3::from(pose.translation);
     let rt_t = r.transpose() * t;
-    let s = SPEC.square_mm;
+    let s = spec.square_mm;
     let mut img = GrayImage::new(width, height);
     let mut state = 0x1234_5678_9abc_def1u64;
     for y in 0..height {
@@ -58,9 +69,9 @@ fn render(cam: &CameraModel, pose: &Pose, width: usize, height: usize) -> GrayIm
                     let by = lambda * d.y - rt_t.y;
                     let (a, b) = ((bx / s).floor() as i64 + 1, (by / s).floor() as i64 + 1);
                     let inside =
-                        (0..=SPEC.cols as i64).contains(&a) && (0..=SPEC.rows as i64).contains(&b);
-                    let margin = (-1..=SPEC.cols as i64 + 1).contains(&a)
-                        && (-1..=SPEC.rows as i64 + 1).contains(&b);
+                        (0..=spec.cols as i64).contains(&a) && (0..=spec.rows as i64).contains(&b);
+                    let margin = (-1..=spec.cols as i64 + 1).contains(&a)
+                        && (-1..=spec.rows as i64 + 1).contains(&b);
                     acc += if lambda <= 0.0 {
                         0.4
                     } else if inside {
@@ -166,4 +177,40 @@ fn no_board_or_a_partial_board_is_a_clear_error() {
     let p = pose(0.0, 0.0, 0.0, (140.0, 0.0), 600.0);
     let err = detect_checkerboard(&render(&cam, &p, 640, 480), &SPEC).unwrap_err();
     assert!(err.to_string().contains("in view"), "{err}");
+}
+
+#[test]
+fn a_square_board_turned_a_quarter_is_found() {
+    // 7×7 inner corners: the grid fits either way round, and a quarter turn is found only
+    // the other way. Its half turn is ambiguous (7 + 7 is even), so the corners are compared
+    // as a set.
+    let spec = CheckerboardSpec {
+        cols: 7,
+        rows: 7,
+        square_mm: 20.0,
+    };
+    let cam = camera(0.0);
+    for spin in [0.0, 90.0, 270.0] {
+        let r = Rotation3::from_euler_angles(
+            15f64.to_radians(),
+            -10f64.to_radians(),
+            f64::to_radians(spin),
+        );
+        let mid = Vector3::new(60.0, 60.0, 0.0);
+        let p = Pose::from_parts(&r, Vector3::new(0.0, 0.0, 600.0) - r * mid);
+        let found = detect_checkerboard(&render_board(&spec, &cam, &p, 640, 480), &spec)
+            .unwrap_or_else(|e| panic!("spin {spin}: {e}"));
+        assert_eq!(found.len(), 49);
+        for (x, y) in spec.board_points() {
+            let q = cam.project(&p, &Vector3::new(x, y, 0.0)).unwrap();
+            let nearest = found
+                .iter()
+                .map(|f| dist(*f, (q.x, q.y)))
+                .fold(f64::INFINITY, f64::min);
+            assert!(
+                nearest < 0.2,
+                "spin {spin}: corner ({x}, {y}) off by {nearest}"
+            );
+        }
+    }
 }

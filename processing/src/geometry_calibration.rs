@@ -37,6 +37,8 @@ pub struct PlacementRecord {
 pub struct GeometryCalibration {
     /// Each camera's geometry in the rig frame.
     pub cameras: Vec<CameraGeometry>,
+    /// (camera, why) for each camera that could not be calibrated or placed.
+    pub failed: Vec<(String, String)>,
     /// The placements, indexed as in each camera's `view_rms_px`.
     pub placements: Vec<PlacementRecord>,
     /// The board the corners were detected for.
@@ -146,9 +148,10 @@ pub fn calibrate_geometry_run(
     }
     let views: Vec<CameraViews> = cameras.into_values().collect();
     let placement_list: Vec<Placement> = placements.iter().map(|p| p.placement).collect();
-    let cameras = calibrate_geometry(&placement_list, &views, options)?;
+    let solution = calibrate_geometry(&placement_list, &views, options)?;
     Ok(GeometryCalibration {
-        cameras,
+        cameras: solution.cameras,
+        failed: solution.failed,
         placements,
         board,
         frames,

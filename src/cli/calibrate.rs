@@ -32,11 +32,12 @@ pub enum CalibrateCommand {
     Geometry {
         /// The run with the checkerboard placements.
         run_dir: PathBuf,
-        /// Inner corners of the board, COLSxROWS (both odd tells a board turned half way).
-        #[arg(long, default_value = "7x7", value_parser = super::calibrate_geometry::parse_corners)]
+        /// Inner corners of the board, COLSxROWS: an odd sum tells the board from its half turn
+        /// (the simulated board's default).
+        #[arg(long, default_value = "8x7", value_parser = super::calibrate_geometry::parse_corners)]
         corners: (usize, usize),
         /// Side of a board square, millimetres.
-        #[arg(long, default_value_t = 10.0)]
+        #[arg(long, default_value_t = 8.0)]
         square_mm: f64,
         /// Fit the r⁶ radial distortion term k3 too (for lenses whose distortion reaches far).
         #[arg(long)]

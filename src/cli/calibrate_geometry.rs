@@ -52,6 +52,7 @@ pub fn calibrate_geometry(
         "rms_px": result.cameras.iter().map(|c| (c.camera.clone(), c.rms_px)).collect::<std::collections::BTreeMap<_, _>>(),
         "frames_used": result.frames.len(),
         "not_detected": result.not_detected.len(),
+        "failed": result.failed,
     });
     let calibration = Calibration {
         kind: CalibrationKind::Geometry,
@@ -67,9 +68,12 @@ pub fn calibrate_geometry(
         software: format!("stagehand {}", env!("CARGO_PKG_VERSION")),
     };
     let stored = calibration_store::save(&root_of(run_dir), calibration).map_err(store_err)?;
+    // A calibration that leaves a camera out is stored (the others are good) but is not a
+    // success: scripts see it in the exit status.
+    let status = if result.failed.is_empty() { 0 } else { 1 };
     if json {
         super::print_json(&stored)?;
-        return Ok(0);
+        return Ok(status);
     }
     println!(
         "calibration {} ({} cameras, {} placements, {} frames; board not found in {})",
@@ -94,9 +98,12 @@ pub fn calibrate_geometry(
             c.centre_mm[2]
         );
     }
+    for (camera, why) in &result.failed {
+        println!("  {camera} LEFT OUT: {why}");
+    }
     for (frame, why) in &result.not_detected {
         println!("  not found in {frame}: {why}");
     }
     println!("stored in {}", root_of(run_dir).join(&stored.id).display());
-    Ok(0)
+    Ok(status)
 }

@@ -40,6 +40,8 @@ pub struct GeometryFigures {
     pub worst: CameraFigures,
     /// Frames where the board was not found.
     pub not_detected: usize,
+    /// (camera, why) for the cameras the calibration left out.
+    pub failed: Vec<(String, String)>,
 }
 
 #[derive(Deserialize)]
@@ -118,5 +120,6 @@ pub fn evaluate_geometry(
         cameras,
         worst,
         not_detected: result.not_detected.len(),
+        failed: result.failed,
     })
 }

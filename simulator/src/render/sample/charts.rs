@@ -6,10 +6,22 @@ use glam::Vec3A;
 use super::noise::floor;
 use crate::render::material::Material;
 
-/// Black (0.03) and white (0.85) matte squares `square` mm on a side, aligned with the origin.
+/// Squares of the calibration board along x and y: 9 × 8, so its 8 × 7 inner corners have
+/// an odd sum and the board cannot be mistaken for itself turned half way.
+pub const BOARD_SQUARES: [i64; 2] = [9, 8];
+
+/// A calibration board: black (0.03) and white (0.85) matte squares `square` mm on a side,
+/// [`BOARD_SQUARES`] of them centred on the origin, in a white margin. The square at the
+/// board's −x, +y corner is black, so a detector that puts its first corner where the square
+/// diagonally outside is dark, with board x then y turning clockwise in the image, finds board
+/// x along +x (the turntable's 0°) on a board lying flat at turntable 0°.
 pub(super) fn checkerboard(square: f32, x: f32, y: f32) -> Material {
-    let parity = (floor(x / square) as i64 + floor(y / square) as i64).rem_euclid(2);
-    Material::grey(if parity == 0 { 0.85 } else { 0.03 })
+    let [nx, ny] = BOARD_SQUARES;
+    let i = floor(x / square + nx as f32 / 2.0) as i64;
+    let j = floor(y / square + ny as f32 / 2.0) as i64;
+    let on_board = (0..nx).contains(&i) && (0..ny).contains(&j);
+    let dark = on_board && (i + j).rem_euclid(2) == 1;
+    Material::grey(if dark { 0.03 } else { 0.85 })
 }
 
 /// Published sRGB values of the 24 ColorChecker patches (row by row, dark skin first).
