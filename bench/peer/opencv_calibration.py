@@ -14,7 +14,8 @@ Output: one JSON object on stdout:
    "merge_time_s": ..}
 
 Method (OpenCV's documented pipeline): findChessboardCorners on an 8-bit view of each frame,
-cornerSubPix (11×11 window, 30 iterations / 0.001 px), calibrateCamera with k1, k2, p1, p2, k3;
+cornerSubPix (11×11 window, 30 iterations / 0.001 px), calibrateCamera with k1, k2, p1, p2 (and
+k3 when the job says "fit_k3": true, as stagehand's --fit-k3);
 createCalibrateDebevec (OpenCV's Debevec–Malik, 8-bit only, so frames are reduced to their top
 8 bits) and createMergeDebevec on the same bracket. Times are wall clock of the OpenCV calls only.
 """
@@ -61,8 +62,10 @@ def geometry(job):
             imgpoints.append(corners)
         entry = {"views": len(images), "found": len(imgpoints)}
         if len(imgpoints) >= 3:
+            # Like stagehand's default, k3 stays 0 unless the job asks to fit it.
+            flags = 0 if job.get("fit_k3", False) else cv2.CALIB_FIX_K3
             rms, k, dist, _, _ = cv2.calibrateCamera(
-                objpoints, imgpoints, (spec["width"], spec["height"]), None, None)
+                objpoints, imgpoints, (spec["width"], spec["height"]), None, None, flags=flags)
             d = dist.ravel().tolist()
             entry.update({"rms_px": rms, "fx": k[0, 0], "fy": k[1, 1], "cx": k[0, 2],
                           "cy": k[1, 2], "dist": d})
