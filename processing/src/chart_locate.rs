@@ -331,7 +331,7 @@ pub fn locate_chart(
         return Err(ProcessingError::IllPosed {
             what: "chart location",
             why: format!(
-                "the best match of the chart's pattern has correlation {value:.2} (at least {:.2} is needed), {:.0} px from where the geometry puts it; check that the chart lies flat and centred in view, or widen the search",
+                "the best match of the chart's pattern has correlation {value:.2} (at least {:.2} is needed), {:.0} px from where the geometry puts it; check that the chart lies flat and centred in view and has the size given, or widen the search",
                 options.min_ncc,
                 p[0].hypot(p[1])
             ),

@@ -34,6 +34,9 @@ pub const MIN_PATCH_PIXELS: usize = 4;
 pub const MAX_BOUND_FRACTION: f64 = 0.05;
 /// Fewest patches a fit needs (as many as the neutral row has).
 pub const MIN_PATCHES: usize = 6;
+/// Fewest measured pixel values, as a fraction of a frame's, for a capture to help locate the
+/// chart; below it the capture is left out of the search (and its lamp will fail its fit).
+pub const MIN_LIT_FRACTION: f64 = 0.01;
 
 /// Settings of the colour calibration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -171,6 +174,7 @@ pub fn measure_view(
     })?;
     let (w, h) = (first.hdr.width, first.hdr.height);
     let mut luminance = GrayImage::new(w, h);
+    let mut lit = 0;
     for c in captures {
         if (c.hdr.width, c.hdr.height) != (w, h) {
             return Err(named(ProcessingError::SizeMismatch {
@@ -179,9 +183,28 @@ pub fn measure_view(
                 got: c.hdr.rgb.len(),
             }));
         }
+        // A capture with next to nothing measured would only add noise to the search.
+        let measured = c.hdr.state.iter().filter(|s| **s == PixelState::Measured);
+        if (measured.count() as f64) < MIN_LIT_FRACTION * c.hdr.state.len() as f64 {
+            continue;
+        }
+        lit += 1;
         for (l, px) in luminance.data.iter_mut().zip(c.hdr.rgb.chunks_exact(3)) {
             *l += (px[0] + px[1] + px[2]) / 3.0;
         }
+    }
+    if lit == 0 {
+        return Err(ProcessingError::CameraLamp {
+            camera: geometry.camera.clone(),
+            lamp: first.lamp.to_string(),
+            source: Box::new(ProcessingError::IllPosed {
+                what: "white balance",
+                why: format!(
+                    "less than {:.0} % of the frame is measured (the rest black or saturated in every exposure): the lamp is too dim or off, or the exposures far too short",
+                    100.0 * MIN_LIT_FRACTION
+                ),
+            }),
+        });
     }
     let pose = chart_to_camera(&geometry.rig_to_camera, turntable_deg);
     let fit = locate_chart(

@@ -308,6 +308,27 @@ fn a_lamp_too_dim_to_measure_is_an_error_naming_camera_and_lamp() {
 }
 
 #[test]
+fn a_camera_seeing_only_a_dark_lamp_says_so_rather_than_missing_the_chart() {
+    let camera = misplaced(35.0, [0.0; 3]);
+    let dark = Light {
+        scale: [1e-5; 3],
+        sigma: 1e-6,
+        floor: 0.001,
+        ..LIGHT
+    };
+    let frames = [(
+        "lamp4",
+        render(&camera, 0.0, Orientation::AsDrawn, dark, 10),
+    )];
+    let err = measure(35.0, 0.0, &frames).unwrap_err();
+    assert!(
+        matches!(&err, ProcessingError::CameraLamp { lamp, .. } if lamp == "lamp4"),
+        "{err}"
+    );
+    assert!(err.to_string().contains("too dim"), "{err}");
+}
+
+#[test]
 fn a_chart_out_of_view_is_an_error() {
     let blank = HdrFrame {
         width: 480,

@@ -27,6 +27,10 @@ pub enum CalibrateCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Joint camera+lamp channel scales (S_r, S_g, S_b) per camera and lamp from the colour
+    /// checker under each lamp (sequences/calibration_colorchecker.rhai), in the units of a
+    /// response calibration.
+    Colour(super::calibrate_colour::ColourArgs),
 }
 
 /// Subcommands of `stagehand calibrations`.
@@ -48,20 +52,23 @@ pub enum CalibrationsCommand {
     },
 }
 
-fn store_err(e: calibration_store::CalibrationStoreError) -> SessionError {
+/// A calibration store error as the CLI reports it.
+pub(super) fn store_err(e: calibration_store::CalibrationStoreError) -> SessionError {
     SessionError::Io(e.to_string())
 }
 
-fn processing_err(e: stagehand_processing::ProcessingError) -> SessionError {
+/// A processing error as the CLI reports it.
+pub(super) fn processing_err(e: stagehand_processing::ProcessingError) -> SessionError {
     SessionError::Io(e.to_string())
 }
 
 /// The calibrations directory for a run: beside it, in its dataset root.
-fn root_of(run_dir: &Path) -> PathBuf {
+pub(super) fn root_of(run_dir: &Path) -> PathBuf {
     calibrations_dir(run_dir.parent().unwrap_or(Path::new(".")))
 }
 
-fn run_id(run_dir: &Path) -> String {
+/// The run's id: its directory name.
+pub(super) fn run_id(run_dir: &Path) -> String {
     run_dir
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
@@ -117,6 +124,7 @@ pub fn calibrate(command: CalibrateCommand) -> Result<i32, SessionError> {
             }
             Ok(0)
         }
+        CalibrateCommand::Colour(args) => super::calibrate_colour::run(args),
     }
 }
 

@@ -3,6 +3,7 @@
 //! `[sim.as_built]`), as one JSON report that tests and benchmarks share. This is the only
 //! code that reads ground truth next to processing results; processing itself never does.
 
+mod colour;
 mod response;
 
 use std::path::Path;
@@ -10,6 +11,7 @@ use std::path::Path;
 use serde::Serialize;
 use stagehand_processing::calibration_store::{self, CalibrationKind, calibrations_dir};
 
+pub use colour::{ColourFigures, LampFigures, evaluate_colour};
 pub use response::{ChannelFigures, ResponseFigures, evaluate_response};
 
 /// Errors of `evaluate`.
@@ -32,6 +34,8 @@ pub struct Report {
     pub run: String,
     /// Response calibrations: figures per calibration id.
     pub response: Vec<ResponseFigures>,
+    /// Colour calibrations: scales per camera and lamp against the truth.
+    pub colour: Vec<ColourFigures>,
 }
 
 /// Evaluates every calibration of `kinds` stored beside `run_dir` that was computed from it.
@@ -52,13 +56,18 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
     let mut report = Report {
         run: run_id.clone(),
         response: Vec::new(),
+        colour: Vec::new(),
     };
     for stored in calibration_store::list(&root)?.into_iter().flatten() {
         if !stored.calibration.inputs.iter().any(|i| i.run_id == run_id) {
             continue;
         }
-        if stored.calibration.kind == CalibrationKind::Response {
-            report.response.push(evaluate_response(&stored, &truth)?);
+        match stored.calibration.kind {
+            CalibrationKind::Response => report.response.push(evaluate_response(&stored, &truth)?),
+            CalibrationKind::Colour => report
+                .colour
+                .push(evaluate_colour(&stored, &truth, run_dir, &root)?),
+            _ => {}
         }
     }
     Ok(report)

@@ -3,40 +3,9 @@
 //! `stagehand evaluate` against the simulator's truth in `as_built.json`, through the CLI.
 
 use std::path::Path;
-use std::process::Command;
 
-use stagehand::rig::RigSource;
-
-use super::common::{run_sequence, small_rig};
-
-const BIN: &str = env!("CARGO_BIN_EXE_stagehand");
-
-/// The built-in rig at 480×360 (the grazing cam1 sees the chart's patches a few pixels tall,
-/// enough for the 5×5 sample windows) drawn as built with `response` style, at `bits` per
-/// sample.
-fn as_built_rig(response: &str, bits: u8) -> RigSource {
-    let rig = small_rig("lightstage", 480, 360);
-    let mut text = rig
-        .text
-        .replace("bit_depth = 12", &format!("bit_depth = {bits}"));
-    text.push_str(&format!(
-        "\n[sim.as_built]\nseed = 3\nresponse = \"{response}\"\n"
-    ));
-    RigSource::from_text(&text, "test:lightstage+as_built").expect("rig parses")
-}
-
-fn stagehand(args: &[&str]) -> serde_json::Value {
-    let out = Command::new(BIN)
-        .args(args)
-        .output()
-        .expect("stagehand runs");
-    assert!(
-        out.status.success(),
-        "stagehand {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("JSON on stdout")
-}
+use super::common::calibration::{as_built_rig, stagehand};
+use super::common::run_sequence;
 
 fn calibrate_and_evaluate(dir: &Path) -> serde_json::Value {
     let dir = dir.to_str().expect("utf-8 path");
