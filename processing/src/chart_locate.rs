@@ -268,6 +268,13 @@ pub fn locate_chart(
             why: "the chart search window must be a finite, non-negative fraction of the image width",
         });
     }
+    if !(options.min_ncc.is_finite() && options.min_ncc <= 1.0) {
+        return Err(ProcessingError::BadParameter {
+            name: "min_ncc",
+            value: options.min_ncc,
+            why: "the lowest correlation accepted must be a finite number up to 1",
+        });
+    }
     let centre = project(model, pose, [0.0, 0.0]).ok_or_else(|| ProcessingError::IllPosed {
         what: "chart location",
         why: "the chart lies behind the camera in the given geometry".into(),
@@ -327,7 +334,7 @@ pub fn locate_chart(
             }
         }
     }
-    if !(value >= options.min_ncc) {
+    if value < options.min_ncc {
         return Err(ProcessingError::IllPosed {
             what: "chart location",
             why: format!(

@@ -114,9 +114,9 @@ fn render(
                     rho[k] += 0.25 * r[k];
                 }
             }
-            for c in 0..3 {
+            for (c, (scale, rho)) in light.scale.iter().zip(rho).enumerate() {
                 let i = 3 * (y * w + x) + c;
-                let v = light.scale[c] * rho[c] + light.sigma * noise.next();
+                let v = scale * rho + light.sigma * noise.next();
                 (rgb[i], state[i]) = if v >= light.clip {
                     (light.clip as f32, PixelState::AtLeast)
                 } else if v <= light.floor {
@@ -148,7 +148,7 @@ fn measure(
         .iter()
         .enumerate()
         .map(|(step, (lamp, hdr))| LampCapture {
-            lamp: *lamp,
+            lamp,
             step,
             frames: &names,
             hdr,
@@ -163,13 +163,11 @@ fn measure(
 }
 
 fn assert_scales(fit: &LampScale, truth: [f64; 3], tolerance: f64) {
-    for c in 0..3 {
-        let err = fit.fit.scale[c] / truth[c] - 1.0;
+    for (c, (got, want)) in fit.fit.scale.iter().zip(truth).enumerate() {
+        let err = got / want - 1.0;
         assert!(
             err.abs() < tolerance,
-            "channel {c}: {} vs {} ({err:+.4})",
-            fit.fit.scale[c],
-            truth[c]
+            "channel {c}: {got} vs {want} ({err:+.4})"
         );
     }
 }
