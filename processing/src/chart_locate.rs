@@ -21,18 +21,36 @@ use crate::gray_image::GrayImage;
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct LocateOptions {
     /// Largest shift searched between the projected and the imaged chart, as a fraction of
-    /// the image width (0.12: ±1.3° on the built-in rig's 11° lenses).
+    /// the image width.
     pub search_fraction: f64,
     /// Lowest normalised cross-correlation between the chart's pattern and the image that
     /// counts as found.
     pub min_ncc: f64,
 }
 
+/// Search window for a nominal geometry: ±12 % of the image width (±1.3° on the built-in
+/// rig's 11° lenses, beyond the ±0.5° and ±3 mm a camera sits off its mount).
+pub const NOMINAL_SEARCH_FRACTION: f64 = 0.12;
+/// Search window for a calibrated geometry: ±3 % of the image width (its residual error is
+/// a fraction of a pixel; the window only guards against a camera knocked since).
+pub const CALIBRATED_SEARCH_FRACTION: f64 = 0.03;
+
 impl Default for LocateOptions {
+    /// The settings for a nominal geometry.
     fn default() -> LocateOptions {
         LocateOptions {
-            search_fraction: 0.12,
+            search_fraction: NOMINAL_SEARCH_FRACTION,
             min_ncc: 0.6,
+        }
+    }
+}
+
+impl LocateOptions {
+    /// The settings for a calibrated geometry: a narrower search.
+    pub fn calibrated() -> LocateOptions {
+        LocateOptions {
+            search_fraction: CALIBRATED_SEARCH_FRACTION,
+            ..LocateOptions::default()
         }
     }
 }

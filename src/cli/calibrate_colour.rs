@@ -15,6 +15,7 @@ use stagehand_processing::calibration_store::{
     self, Calibration, CalibrationInput, CalibrationKind, StoredCalibration,
 };
 use stagehand_processing::chart_layout::{ChartLayout, DEFAULT_SIZE_MM};
+use stagehand_processing::chart_locate::LocateOptions;
 use stagehand_processing::colour_calibration::{ColourOptions, ColourSet, calibrate_colour};
 use stagehand_processing::nominal_geometry::{NominalCamera, nominal_geometry};
 use stagehand_processing::response_calibration::ResponseSet;
@@ -31,8 +32,9 @@ pub struct ColourArgs {
     /// The response calibration the brackets are merged with (`stagehand calibrations list`).
     #[arg(long, value_name = "ID")]
     pub response: String,
-    /// A geometry calibration to find the chart with; without it, the cameras as the run's rig
-    /// file describes them (the search then corrects for their mounting errors).
+    /// A geometry calibration to find the chart with (searched within ±3 % of the image
+    /// width); without it, the cameras as the run's rig file describes them (searched within
+    /// ±12 %, for their mounting errors).
     #[arg(long, value_name = "ID")]
     pub geometry: Option<String>,
     /// Long side of the colour checker in mm (default: the run's `[sim] sample_size_mm`, the
@@ -138,6 +140,11 @@ pub fn run(args: ColourArgs) -> Result<i32, SessionError> {
         turntable_axis: rig
             .axis_with_role(AxisRole::Turntable)
             .map(|a| a.id.clone()),
+        // A calibrated geometry puts the chart within a pixel: search a narrow window.
+        locate: match args.geometry {
+            Some(_) => LocateOptions::calibrated(),
+            None => LocateOptions::default(),
+        },
         ..ColourOptions::default()
     };
     let set = calibrate_colour(run_dir, &responses, &geometry, &options).map_err(processing_err)?;
