@@ -41,6 +41,17 @@ pub enum ProcessingError {
     },
     #[error("the {what} is ill-posed: {why}")]
     IllPosed { what: &'static str, why: String },
+    #[error("camera `{camera}`: {source}")]
+    Camera {
+        camera: String,
+        source: Box<ProcessingError>,
+    },
+    #[error("camera `{camera}` under lamp `{lamp}`: {source}")]
+    CameraLamp {
+        camera: String,
+        lamp: String,
+        source: Box<ProcessingError>,
+    },
     #[error("run {run}: {message}")]
     Dataset { run: String, message: String },
     #[error("run {run} has no {what}; {hint}")]

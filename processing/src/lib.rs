@@ -20,6 +20,10 @@
 //! | [`rig_frame`] | the turntable axis and the rig frame from flat board placements |
 //! | [`rectify`] | resampling a view onto the reference plane with area averaging |
 //! | [`white_balance`] | joint camera+lamp channel scales from the colour checker |
+//! | [`chart_layout`] | the colour checker's physical layout on the turntable |
+//! | [`chart_locate`] | finding the colour checker in an image from a camera's geometry |
+//! | [`colour_calibration`] | every camera's scales under every lamp from a colour-checker run |
+//! | [`nominal_geometry`] | a camera's geometry as the rig file describes it |
 //! | [`run_frames`] | a run's raw brackets, listed and decoded one at a time |
 //! | [`calibration_store`] | calibrations as content-addressed, versioned artefacts |
 //! | [`zarr_array`] | a Zarr v3 array writer (uncompressed chunks) for the BTF |
@@ -30,13 +34,17 @@ pub mod calibrate_camera;
 pub mod calibrate_geometry;
 pub mod calibration_store;
 pub mod camera_model;
+pub mod chart_layout;
+pub mod chart_locate;
 pub mod checkerboard;
+pub mod colour_calibration;
 pub mod corner_subpix;
 pub mod error;
 pub mod geometry_calibration;
 pub mod gray_image;
 pub mod hdr_frame;
 pub mod homography;
+pub mod nominal_geometry;
 pub mod rectify;
 pub mod response_calibration;
 pub mod response_curve;

@@ -72,8 +72,10 @@ pub struct WhiteBalance {
     pub scale: [f64; 3],
     /// Relative standard error of each scale.
     pub rel_std: [f64; 3],
-    /// RMS of the relative residual (m − S·ρ)/(S·ρ) over the patches, per channel: how well
-    /// one scale explains the chart (a non-linear response or glare shows here).
+    /// RMS residual m − S·ρ over the RMS prediction S·ρ, per channel: how well one scale
+    /// explains the chart (a non-linear response or glare shows here). Ratios of sums, not a
+    /// mean of per-patch ratios: a channel a patch barely reflects (cyan's red, 0.2 %) would
+    /// turn its noise into a huge relative error.
     pub rel_residual: [f64; 3],
 }
 
@@ -137,12 +139,13 @@ pub fn white_balance(patches: &[PatchMeasurement]) -> Result<WhiteBalance, Proce
         }
         scale[c] = s;
         rel_std[c] = sigma / s;
-        let mut sq = 0.0;
+        let (mut sq, mut signal) = (0.0, 0.0);
         for p in patches {
             let predicted = s * checker_reflectance(p.patch)[c];
-            sq += ((p.mean[c] - predicted) / predicted).powi(2);
+            sq += (p.mean[c] - predicted).powi(2);
+            signal += predicted * predicted;
         }
-        rel_residual[c] = (sq / patches.len() as f64).sqrt();
+        rel_residual[c] = (sq / signal).sqrt();
     }
     Ok(WhiteBalance {
         scale,

@@ -46,6 +46,10 @@ pub enum CalibrateCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Joint camera+lamp channel scales (S_r, S_g, S_b) per camera and lamp from the colour
+    /// checker under each lamp (sequences/calibration_colorchecker.rhai), in the units of a
+    /// response calibration.
+    Colour(super::calibrate_colour::ColourArgs),
 }
 
 /// Subcommands of `stagehand calibrations`.
@@ -67,10 +71,12 @@ pub enum CalibrationsCommand {
     },
 }
 
+/// A calibration store error as the CLI reports it.
 pub(super) fn store_err(e: calibration_store::CalibrationStoreError) -> SessionError {
     SessionError::Io(e.to_string())
 }
 
+/// A processing error as the CLI reports it.
 pub(super) fn processing_err(e: stagehand_processing::ProcessingError) -> SessionError {
     SessionError::Io(e.to_string())
 }
@@ -80,6 +86,7 @@ pub(super) fn root_of(run_dir: &Path) -> PathBuf {
     calibrations_dir(run_dir.parent().unwrap_or(Path::new(".")))
 }
 
+/// The run's id: its directory name.
 pub(super) fn run_id(run_dir: &Path) -> String {
     run_dir
         .file_name()
@@ -145,6 +152,7 @@ pub fn calibrate(command: CalibrateCommand) -> Result<i32, SessionError> {
             }
             Ok(0)
         }
+        CalibrateCommand::Colour(args) => super::calibrate_colour::run(args),
     }
 }
 

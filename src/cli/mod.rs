@@ -1,6 +1,7 @@
 //! Command-line interface. Exit codes: 0 done, 1 failed or aborted, 2 bad input.
 
 mod calibrate;
+mod calibrate_colour;
 mod calibrate_geometry;
 mod devices;
 mod operator;

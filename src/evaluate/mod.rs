@@ -3,6 +3,7 @@
 //! `[sim.as_built]`), as one JSON report that tests and benchmarks share. This is the only
 //! code that reads ground truth next to processing results; processing itself never does.
 
+mod colour;
 mod geometry;
 mod response;
 
@@ -11,6 +12,7 @@ use std::path::Path;
 use serde::Serialize;
 use stagehand_processing::calibration_store::{self, CalibrationKind, calibrations_dir};
 
+pub use colour::{ColourFigures, LampFigures, evaluate_colour};
 pub use geometry::{CameraFigures, GeometryFigures, evaluate_geometry};
 pub use response::{ChannelFigures, ResponseFigures, evaluate_response};
 
@@ -36,6 +38,8 @@ pub struct Report {
     pub response: Vec<ResponseFigures>,
     /// Geometry calibrations: figures per calibration id.
     pub geometry: Vec<GeometryFigures>,
+    /// Colour calibrations: scales per camera and lamp against the truth.
+    pub colour: Vec<ColourFigures>,
 }
 
 /// Evaluates every calibration of `kinds` stored beside `run_dir` that was computed from it.
@@ -57,6 +61,7 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
         run: run_id.clone(),
         response: Vec::new(),
         geometry: Vec::new(),
+        colour: Vec::new(),
     };
     for stored in calibration_store::list(&root)?.into_iter().flatten() {
         if !stored.calibration.inputs.iter().any(|i| i.run_id == run_id) {
@@ -65,6 +70,9 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
         match stored.calibration.kind {
             CalibrationKind::Response => report.response.push(evaluate_response(&stored, &truth)?),
             CalibrationKind::Geometry => report.geometry.push(evaluate_geometry(&stored, &truth)?),
+            CalibrationKind::Colour => report
+                .colour
+                .push(evaluate_colour(&stored, &truth, run_dir, &root)?),
             _ => {}
         }
     }

@@ -9,6 +9,7 @@
 use serde::Serialize;
 use stagehand_processing::calibration_store::{CalibrationKind, StoredCalibration};
 use stagehand_processing::response_calibration::ResponseSet;
+use stagehand_processing::response_curve::InverseResponse;
 use stagehand_processing::weight::RAMP_FRACTION;
 use stagehand_simulator::render::sensor::Response;
 
@@ -56,6 +57,84 @@ fn true_exposure(cam: &serde_json::Value, c: usize, z: f64, black: f64, max: f64
     Some(response.invert(c, (z - black) / max))
 }
 
+/// One camera's recorded truth (as_built.json's entry), for comparing recovered responses.
+pub(super) struct CameraTruth<'a> {
+    id: &'a str,
+    cam: &'a serde_json::Value,
+    black: f64,
+    max: f64,
+}
+
+impl<'a> CameraTruth<'a> {
+    /// Camera `id` of `truth` (as_built.json).
+    pub(super) fn new(truth: &'a serde_json::Value, id: &'a str) -> Result<Self, EvaluateError> {
+        let cam = &truth["cameras"][id];
+        let bits = cam["bit_depth"]
+            .as_u64()
+            .ok_or_else(|| truth_err(id, "no bit_depth"))?;
+        Ok(CameraTruth {
+            id,
+            cam,
+            black: stagehand_simulator::render::sensor::black_level_dn(bits as u8),
+            max: ((1u64 << bits.min(16)) - 1) as f64,
+        })
+    }
+
+    /// ln of the true fraction of the full well that gives DN `z` on channel `c`.
+    fn ln_x(&self, c: usize, z: f64) -> Result<f64, EvaluateError> {
+        true_exposure(self.cam, c, z, self.black, self.max)
+            .map(f64::ln)
+            .ok_or_else(|| truth_err(self.id, "no response"))
+    }
+
+    /// The DN range over which recovered `g` of channel `c` is evaluated: observed, trusted
+    /// by the fit (weight ≥ 0.1) and resolved to 1 % by one DN.
+    pub(super) fn evaluated_range(
+        &self,
+        c: usize,
+        g: &InverseResponse,
+    ) -> Result<(f64, f64), EvaluateError> {
+        // The fit's weight ramps up from 0 at its noise floor (`range.lo`) over 5 % of the
+        // range; below a weight of 0.1 g is set by the smoothness term, not by data.
+        let trusted = g.range.lo + 0.1 * RAMP_FRACTION * (g.range.hi - g.range.lo);
+        let hi = g.observed.hi.min(g.range.hi);
+        // The first DN at which one DN step moves ln x by at most 0.05.
+        let mut resolved = trusted;
+        while resolved < hi && self.ln_x(c, resolved + 1.0)? - self.ln_x(c, resolved)? > 0.05 {
+            resolved += 1.0;
+        }
+        Ok((g.observed.lo.max(trusted).max(resolved), hi))
+    }
+
+    /// ln x − g at 400 DNs over `[lo, hi]`, and their median: the free constant of `g` (the
+    /// solver pins g = 0 at its middle knot), so that x = exp(g + offset).
+    pub(super) fn log_offset(
+        &self,
+        c: usize,
+        g: &InverseResponse,
+        lo: f64,
+        hi: f64,
+    ) -> Result<(Vec<f64>, f64), EvaluateError> {
+        let logs = (0..400)
+            .map(|i| {
+                let z = lo + (hi - lo) * f64::from(i) / 399.0;
+                Ok(self.ln_x(c, z)? - g.g(z))
+            })
+            .collect::<Result<Vec<f64>, EvaluateError>>()?;
+        let mut sorted = logs.clone();
+        sorted.sort_by(f64::total_cmp);
+        let offset = sorted[sorted.len() / 2];
+        Ok((logs, offset))
+    }
+}
+
+fn truth_err(id: &str, what: &str) -> EvaluateError {
+    EvaluateError::Truth {
+        path: "as_built.json".into(),
+        message: format!("camera `{id}`: {what}"),
+    }
+}
+
 /// Evaluates one stored response calibration against `truth` (as_built.json).
 pub fn evaluate_response(
     stored: &StoredCalibration,
@@ -65,44 +144,12 @@ pub fn evaluate_response(
     let mut cameras = std::collections::BTreeMap::new();
     let mut worst = 0.0f64;
     for (id, fit) in &set {
-        let cam = &truth["cameras"][id];
-        let bad = |what: &str| EvaluateError::Truth {
-            path: "as_built.json".into(),
-            message: format!("camera `{id}`: {what}"),
-        };
-        let bits = cam["bit_depth"]
-            .as_u64()
-            .ok_or_else(|| bad("no bit_depth"))?;
-        let max = ((1u64 << bits.min(16)) - 1) as f64;
-        let black = stagehand_simulator::render::sensor::black_level_dn(bits as u8);
+        let cam = CameraTruth::new(truth, id)?;
         let mut channels = Vec::with_capacity(3);
         for (c, g) in fit.channels.iter().enumerate() {
-            // The fit's weight ramps up from 0 at its noise floor (`range.lo`) over 5 % of the
-            // range; below a weight of 0.1 g is set by the smoothness term, not by data.
-            let trusted = g.range.lo + 0.1 * RAMP_FRACTION * (g.range.hi - g.range.lo);
-            let hi = g.observed.hi.min(g.range.hi);
-            let ln_x = |z: f64| {
-                true_exposure(cam, c, z, black, max)
-                    .map(f64::ln)
-                    .ok_or_else(|| bad("no response"))
-            };
-            // The first DN at which one DN step moves ln x by at most 0.05.
-            let mut resolved = trusted;
-            while resolved < hi && ln_x(resolved + 1.0)? - ln_x(resolved)? > 0.05 {
-                resolved += 1.0;
-            }
-            let lo = g.observed.lo.max(trusted).max(resolved);
+            let (lo, hi) = cam.evaluated_range(c, g)?;
             let errors_over = |lo: f64| -> Result<Vec<f64>, EvaluateError> {
-                let zs: Vec<f64> = (0..400)
-                    .map(|i| lo + (hi - lo) * f64::from(i) / 399.0)
-                    .collect();
-                let logs = zs
-                    .iter()
-                    .map(|&z| Ok(ln_x(z)? - g.g(z)))
-                    .collect::<Result<Vec<f64>, EvaluateError>>()?;
-                let mut sorted = logs.clone();
-                sorted.sort_by(f64::total_cmp);
-                let offset = sorted[sorted.len() / 2];
+                let (logs, offset) = cam.log_offset(c, g, lo, hi)?;
                 Ok(logs
                     .iter()
                     .map(|l| ((l - offset).exp() - 1.0).abs())
@@ -124,7 +171,7 @@ pub fn evaluate_response(
         }
         let [r, g, b]: [ChannelFigures; 3] = channels
             .try_into()
-            .map_err(|_| bad("a channel is missing"))?;
+            .map_err(|_| truth_err(id, "a channel is missing"))?;
         cameras.insert(id.clone(), [r, g, b]);
     }
     Ok(ResponseFigures {

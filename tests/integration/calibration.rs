@@ -4,40 +4,9 @@
 //! `stagehand evaluate` against the simulator's truth in `as_built.json`, through the CLI.
 
 use std::path::Path;
-use std::process::Command;
 
-use stagehand::rig::RigSource;
-
-use super::common::{run_sequence, small_rig};
-
-const BIN: &str = env!("CARGO_BIN_EXE_stagehand");
-
-/// The built-in rig at 480×360 (the grazing cam1 sees the chart's patches a few pixels tall,
-/// enough for the 5×5 sample windows) drawn as built with `response` style, at `bits` per
-/// sample.
-fn as_built_rig(response: &str, bits: u8) -> RigSource {
-    let rig = small_rig("lightstage", 480, 360);
-    let mut text = rig
-        .text
-        .replace("bit_depth = 12", &format!("bit_depth = {bits}"));
-    text.push_str(&format!(
-        "\n[sim.as_built]\nseed = 3\nresponse = \"{response}\"\n"
-    ));
-    RigSource::from_text(&text, "test:lightstage+as_built").expect("rig parses")
-}
-
-fn stagehand(args: &[&str]) -> serde_json::Value {
-    let out = Command::new(BIN)
-        .args(args)
-        .output()
-        .expect("stagehand runs");
-    assert!(
-        out.status.success(),
-        "stagehand {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("JSON on stdout")
-}
+use super::common::calibration::{as_built_rig, as_built_rig_with, stagehand, stagehand_output};
+use super::common::run_sequence;
 
 fn calibrate_and_evaluate(dir: &Path) -> serde_json::Value {
     let dir = dir.to_str().expect("utf-8 path");
@@ -104,18 +73,12 @@ fn the_strong_response_of_8_bit_cameras_is_recovered_within_1_percent() {
 fn the_cameras_are_calibrated_and_placed_in_the_rig_frame_from_the_checkerboard() {
     let _turn = crate::grbl_peer::alongside();
     let out = tempfile::tempdir().unwrap();
-    let rig = as_built_rig("gentle", 12);
-    let mut text = rig.text.clone();
-    text.push_str("\n[sim.knobs]\nspp_side = 2\n");
-    let rig = RigSource::from_text(&text, "test:lightstage+as_built+aa").expect("rig parses");
+    let rig = as_built_rig_with("gentle", 12, |text| text + "\n[sim.knobs]\nspp_side = 2\n");
     let run = run_sequence("calibration_checkerboard.rhai", rig, &[], out.path(), 1);
     run.result.as_ref().expect("the placements run");
     let dir = run.dir.to_str().expect("utf-8 path");
     // A camera left out makes the exit status 1; the calibration is stored either way.
-    let output = Command::new(BIN)
-        .args(["calibrate", "geometry", dir, "--json"])
-        .output()
-        .expect("stagehand runs");
+    let output = stagehand_output(&["calibrate", "geometry", dir, "--json"]);
     let stored: serde_json::Value = serde_json::from_slice(&output.stdout).expect("JSON");
     let failed = stored["result"]["failed"]
         .as_array()

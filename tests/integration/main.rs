@@ -8,6 +8,7 @@
 
 mod bad_input;
 mod calibration;
+mod calibration_colour;
 mod common;
 mod control;
 mod daemon_api;

@@ -4,6 +4,7 @@
 #![allow(dead_code)]
 
 pub mod api;
+pub mod calibration;
 
 use std::future::Future;
 use std::path::{Path, PathBuf};

@@ -71,6 +71,18 @@ pub fn colorchecker_patch(index: usize) -> Vec3A {
     )
 }
 
+/// Centre (x, y) in mm of patch `index` (0..24) of the colour checker on a `size` mm sample:
+/// 6 columns a pitch of size·0.96/6 apart along +y, 4 rows along +x from −x.
+pub fn colorchecker_patch_centre(size: f32, index: usize) -> (f32, f32) {
+    let pitch = size * 0.96 / 6.0;
+    let index = index.min(23);
+    let (row, col) = ((index / 6) as f32, (index % 6) as f32);
+    (
+        -2.0 * pitch + (row + 0.5) * pitch,
+        -3.0 * pitch + (col + 0.5) * pitch,
+    )
+}
+
 /// A 6×4 chart on a black card: columns run along +y (left to right for the camera arc at
 /// azimuth 0), rows along +x starting at −x (the far side, top of those images).
 pub(super) fn colorchecker(size: f32, x: f32, y: f32) -> Material {
@@ -79,11 +91,10 @@ pub(super) fn colorchecker(size: f32, x: f32, y: f32) -> Material {
     let col = floor((y + 3.0 * pitch) / pitch);
     let row = floor((x + 2.0 * pitch) / pitch);
     if (0.0..6.0).contains(&col) && (0.0..4.0).contains(&row) {
-        let cy = -3.0 * pitch + (col + 0.5) * pitch;
-        let cx = -2.0 * pitch + (row + 0.5) * pitch;
+        let index = row as usize * 6 + col as usize;
+        let (cx, cy) = colorchecker_patch_centre(size, index);
         if (y - cy).abs() <= 0.5 * patch && (x - cx).abs() <= 0.5 * patch {
-            let albedo = colorchecker_patch(row as usize * 6 + col as usize);
-            return Material::ward(albedo, 0.0, 0.2);
+            return Material::ward(colorchecker_patch(index), 0.0, 0.2);
         }
     }
     Material::grey(0.03)

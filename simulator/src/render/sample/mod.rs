@@ -19,7 +19,7 @@ use crate::render::quality::SimKnobs;
 
 pub use super::material::{Material, Medium};
 pub use crate::scene_file::builtin::FIXTURES;
-pub use charts::{colorchecker_patch, srgb_to_linear};
+pub use charts::{colorchecker_patch, colorchecker_patch_centre, srgb_to_linear};
 pub use knobs::scene_knobs;
 pub use procedural::BUMPS_SEED;
 
