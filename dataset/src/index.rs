@@ -652,8 +652,7 @@ impl Index {
         self.read().ground_truth(step)
     }
 
-    /// The underlying connection, for ad-hoc queries in tests.
-    #[cfg(test)]
+    /// The underlying connection: for the products table (`products.rs`) and tests.
     pub(crate) fn conn(&self) -> &Connection {
         &self.conn
     }

@@ -35,6 +35,8 @@ pub const INDEX: &str = "index.sqlite";
 pub const FRAMES_DIR: &str = "frames";
 /// Lock file name.
 pub const LOCK: &str = ".lock";
+/// Directory of the products processing writes (`products/<kind>/<file>`).
+pub const PRODUCTS_DIR: &str = "products";
 
 /// True for `frames/<file name>`: the only form of path the index records for a file (a
 /// relative path with no `..`, no root and no deeper directories).
@@ -48,7 +50,16 @@ pub fn is_frame_path(rel: &str) -> bool {
 }
 
 /// Names the script copy may not take, because the layout uses them.
-const RESERVED: [&str; 7] = [MANIFEST, PLAN, RIG, SCENE, AS_BUILT, INDEX, FRAMES_DIR];
+const RESERVED: [&str; 8] = [
+    MANIFEST,
+    PLAN,
+    RIG,
+    SCENE,
+    AS_BUILT,
+    INDEX,
+    FRAMES_DIR,
+    PRODUCTS_DIR,
+];
 
 /// Replaces every character outside `[A-Za-z0-9_-]` with `_` (and maps "" to `fallback`), so
 /// ids from scripts and rig files are safe in file names.

@@ -69,6 +69,7 @@ pub mod layout;
 pub mod manifest;
 pub mod plan;
 pub mod png16;
+pub mod products;
 pub mod query;
 pub mod reader;
 pub mod run_store;

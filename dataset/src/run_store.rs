@@ -646,7 +646,7 @@ fn read_required(dir: &Path, name: &'static str) -> Result<Vec<u8>> {
 }
 
 /// Takes the run's exclusive advisory write lock (non-blocking).
-fn lock_run(dir: &Path) -> Result<File> {
+pub(crate) fn lock_run(dir: &Path) -> Result<File> {
     let path = dir.join(layout::LOCK);
     let file = OpenOptions::new()
         .create(true)

@@ -41,6 +41,8 @@ pub enum ProcessingError {
     },
     #[error("the {what} is ill-posed: {why}")]
     IllPosed { what: &'static str, why: String },
+    #[error("calibration {id} does not fit this run: {why}")]
+    CalibrationMismatch { id: String, why: String },
     #[error("camera `{camera}`: {source}")]
     Camera {
         camera: String,

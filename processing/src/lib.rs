@@ -43,6 +43,7 @@ pub mod error;
 pub mod geometry_calibration;
 pub mod gray_image;
 pub mod hdr_frame;
+pub mod hdr_products;
 pub mod homography;
 pub mod nominal_geometry;
 pub mod rectify;

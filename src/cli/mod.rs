@@ -5,6 +5,7 @@ mod calibrate_colour;
 mod calibrate_geometry;
 mod devices;
 mod operator;
+mod process;
 mod progress;
 mod remote;
 mod sim;
@@ -129,6 +130,9 @@ enum Command {
         #[command(subcommand)]
         command: calibrate::CalibrateCommand,
     },
+    /// Make products from a run's frames with stored calibrations (HDR radiance), written
+    /// into the run and indexed; an interrupted process resumes.
+    Process(process::ProcessArgs),
     /// List or show stored calibrations.
     Calibrations {
         #[command(subcommand)]
@@ -186,6 +190,7 @@ fn dispatch(command: Command) -> Result<i32, SessionError> {
         Command::Sim { command } => Ok(sim::run(command)),
         Command::Calibrate { command } => calibrate::calibrate(command),
         Command::Calibrations { command } => calibrate::calibrations(command),
+        Command::Process(args) => process::process(args),
         Command::Evaluate { run_dir } => calibrate::evaluate(&run_dir),
         Command::Serve {
             rig,

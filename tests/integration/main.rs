@@ -21,6 +21,7 @@ mod determinism;
 mod emulated_rig;
 mod ground_truth;
 mod kill_resume;
+mod process;
 mod real_grbl_quickstart;
 mod run_state;
 mod sequences;
