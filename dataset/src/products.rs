@@ -93,20 +93,7 @@ impl ProductStore {
 
     /// Every product, in key order.
     pub fn products(&self) -> Result<Vec<StoredProduct>> {
-        let path = self.index_path();
-        let mut stmt = self
-            .index
-            .conn()
-            .prepare(
-                "SELECT kind, key, path, inputs, calibrations, software, parameters, sha256,
-                        size_bytes, created_unix_s FROM products ORDER BY key",
-            )
-            .map_err(sql_err(&path, "list products"))?;
-        let rows = stmt
-            .query_map([], row_to_product)
-            .map_err(sql_err(&path, "list products"))?;
-        rows.collect::<rusqlite::Result<_>>()
-            .map_err(sql_err(&path, "list products"))
+        list(self.index.conn(), &self.index_path())
     }
 
     /// Whether `new` is already made: its row matches what `new` says it is made from, and its
@@ -169,6 +156,21 @@ impl ProductStore {
     fn index_path(&self) -> PathBuf {
         self.dir.join(layout::INDEX)
     }
+}
+
+/// Every product row of the index at `index` (schema ≥ 4), in key order.
+pub(crate) fn list(conn: &rusqlite::Connection, index: &Path) -> Result<Vec<StoredProduct>> {
+    let mut stmt = conn
+        .prepare(
+            "SELECT kind, key, path, inputs, calibrations, software, parameters, sha256,
+                    size_bytes, created_unix_s FROM products ORDER BY key",
+        )
+        .map_err(sql_err(index, "list products"))?;
+    let rows = stmt
+        .query_map([], row_to_product)
+        .map_err(sql_err(index, "list products"))?;
+    rows.collect::<rusqlite::Result<_>>()
+        .map_err(sql_err(index, "list products"))
 }
 
 /// A product row's JSON column as text.

@@ -138,6 +138,14 @@ impl RunReader {
         self.ctx().ground_truth(step)
     }
 
+    /// Every product processing wrote into the run, in key order (none before schema 4).
+    pub fn products(&self) -> Result<Vec<crate::products::StoredProduct>> {
+        if self.version < 4 {
+            return Ok(Vec::new());
+        }
+        crate::products::list(&self.conn, &self.index)
+    }
+
     /// Every file the index records (frames, then ground truth), with what checking it needs.
     pub fn recorded_files(&self) -> Result<Vec<RecordedFile>> {
         self.ctx().recorded_files()

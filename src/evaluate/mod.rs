@@ -5,6 +5,7 @@
 
 mod colour;
 mod geometry;
+mod hdr;
 mod response;
 
 use std::path::Path;
@@ -14,6 +15,7 @@ use stagehand_processing::calibration_store::{self, CalibrationKind, calibration
 
 pub use colour::{ColourFigures, LampFigures, evaluate_colour};
 pub use geometry::{CameraFigures, GeometryFigures, evaluate_geometry};
+pub use hdr::{ErrorFigures, HdrFigures, evaluate_hdr};
 pub use response::{ChannelFigures, ResponseFigures, evaluate_response};
 
 /// Errors of `evaluate`.
@@ -40,6 +42,8 @@ pub struct Report {
     pub geometry: Vec<GeometryFigures>,
     /// Colour calibrations: scales per camera and lamp against the truth.
     pub colour: Vec<ColourFigures>,
+    /// The run's HDR products against its noise-free radiance (runs with ground truth).
+    pub hdr: Option<HdrFigures>,
 }
 
 /// Evaluates every calibration of `kinds` stored beside `run_dir` that was computed from it.
@@ -62,6 +66,7 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
         response: Vec::new(),
         geometry: Vec::new(),
         colour: Vec::new(),
+        hdr: None,
     };
     for stored in calibration_store::list(&root)?.into_iter().flatten() {
         if !stored.calibration.inputs.iter().any(|i| i.run_id == run_id) {
@@ -76,5 +81,6 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
             _ => {}
         }
     }
+    report.hdr = evaluate_hdr(run_dir, &root)?;
     Ok(report)
 }
