@@ -146,6 +146,14 @@ pub fn create_run(
         seed,
         simulated: true,
         sim: Some(sim_manifest(&prepared.rig.spec)?),
+        calibrations: prepared
+            .rig
+            .spec
+            .calibration
+            .named()
+            .into_iter()
+            .map(|(kind, id)| (kind.to_string(), id.to_string()))
+            .collect(),
     };
     Ok(RunStore::create(out_root, manifest, &prepared.plan)?)
 }

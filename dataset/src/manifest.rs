@@ -37,6 +37,9 @@ pub struct Manifest {
     /// How the frames were simulated (simulated rigs; absent in older runs).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sim: Option<SimManifest>,
+    /// The calibrations the rig file named (`[calibration]`), kind → id.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub calibrations: BTreeMap<String, String>,
 }
 
 /// The `sim` block of a simulated run's manifest: the renderer's settings and the scene of the

@@ -116,6 +116,7 @@ fn manifest() -> Manifest {
         seed: 42,
         simulated: true,
         sim: None,
+        calibrations: BTreeMap::new(),
     }
 }
 

@@ -33,8 +33,9 @@ pub struct ProcessArgs {
     #[arg(long, value_enum, value_delimiter = ',', default_value = "hdr")]
     pub products: Vec<Product>,
     /// A calibration to use, by id (repeatable): one `response-…`, optionally one `colour-…`,
-    /// from `calibrations/` beside the run.
-    #[arg(long = "calibration", required = true)]
+    /// from `calibrations/` beside the run. Default: those the run's rig file named
+    /// (`[calibration]`, recorded in its manifest).
+    #[arg(long = "calibration")]
     pub calibrations: Vec<String>,
     /// Print the summary as JSON.
     #[arg(long)]
@@ -44,9 +45,21 @@ pub struct ProcessArgs {
 /// Runs `stagehand process`.
 pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
     let root = root_of(&args.run_dir);
+    let ids = if args.calibrations.is_empty() {
+        let manifest = stagehand_dataset::read_manifest(&args.run_dir)
+            .map_err(|e| SessionError::Io(e.to_string()))?;
+        manifest
+            .calibrations
+            .iter()
+            .filter(|(kind, _)| matches!(kind.as_str(), "response" | "colour"))
+            .map(|(_, id)| id.clone())
+            .collect()
+    } else {
+        args.calibrations.clone()
+    };
     let mut response: Option<(ResponseSet, String)> = None;
     let mut colour: Option<(ColourSet, String)> = None;
-    for id in &args.calibrations {
+    for id in &ids {
         let stored = calibration_store::load(&root, id).map_err(store_err)?;
         let kind = stored.calibration.kind;
         let twice = |kind: &str| {
@@ -73,7 +86,7 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
     }
     let (responses, response_id) = response.ok_or_else(|| {
         SessionError::Io(
-            "process needs a response calibration: --calibration response-… (make one with `stagehand calibrate response`)".into(),
+            "process needs a response calibration: --calibration response-…, or name one in the rig file's [calibration] table before the capture (make one with `stagehand calibrate response`)".into(),
         )
     })?;
     let mut store =

@@ -74,9 +74,13 @@ fn hdr_products_are_indexed_resumed_and_refused_for_cameras_not_calibrated() {
         (Some(1), Some(7))
     );
 
-    // A rig whose cam8 is called cam9: the response calibration does not cover it.
+    // A rig whose cam8 is called cam9, naming the response calibration in its file: the run
+    // records it, `process` uses it by default, and it does not cover cam9.
     let rig = small_rig("lightstage", 48, 36);
-    let renamed = rig.text.replace("id = \"cam8\"", "id = \"cam9\"");
+    let renamed = format!(
+        "{}\n[calibration]\nresponse = \"{id}\"\n",
+        rig.text.replace("id = \"cam8\"", "id = \"cam9\"")
+    );
     assert_ne!(renamed, rig.text);
     let rig = RigSource::from_text(&renamed, "test:lightstage+cam9").expect("rig parses");
     let script = ScriptSource {
@@ -101,7 +105,9 @@ fn hdr_products_are_indexed_resumed_and_refused_for_cameras_not_calibrated() {
         let f = f.unwrap();
         std::fs::copy(f.path(), to.join(f.file_name())).unwrap();
     }
-    let refused = stagehand_output(&["process", other.dir.to_str().unwrap(), "--calibration", &id]);
+    let manifest = stagehand_dataset::read_manifest(&other.dir).unwrap();
+    assert_eq!(manifest.calibrations.get("response"), Some(&id));
+    let refused = stagehand_output(&["process", other.dir.to_str().unwrap()]);
     assert!(!refused.status.success());
     let text = String::from_utf8_lossy(&refused.stderr);
     assert!(

@@ -66,6 +66,19 @@ fn positive(v: f64) -> bool {
 
 /// Semantic checks serde cannot express. Returns the offending key's path and a sentence.
 fn check(spec: &RigSpec) -> Result<(), Problem> {
+    for (kind, id) in spec.calibration.named() {
+        let hash = id
+            .strip_prefix(kind)
+            .and_then(|rest| rest.strip_prefix('-'));
+        if !hash.is_some_and(|h| h.len() == 12 && h.bytes().all(|b| b.is_ascii_hexdigit())) {
+            return Err((
+                super::span::key("calibration", kind),
+                format!(
+                    "calibration.{kind} = \"{id}\" is not a {kind} calibration id (`{kind}-` and 12 hex digits); `stagehand calibrations list` shows the stored ones"
+                ),
+            ));
+        }
+    }
     let mut ids: Vec<(&str, Vec<Seg>)> = Vec::new();
     for (i, a) in spec.axes.iter().enumerate() {
         ids.push((&a.id, at("axis", i, "id")));
@@ -429,6 +442,25 @@ mod tests {
             }) => (line, col, message),
             other => panic!("expected an error, got {other:?}"),
         }
+    }
+
+    #[test]
+    fn calibrations_are_named_by_their_ids() {
+        let good =
+            format!("{BUILTIN_LIGHTSTAGE}\n[calibration]\nresponse = \"response-0123456789ab\"\n");
+        let rig = parse_rig(&good, "x.toml").expect("parses");
+        assert_eq!(
+            rig.calibration.named(),
+            [("response", "response-0123456789ab")]
+        );
+        let bad =
+            format!("{BUILTIN_LIGHTSTAGE}\n[calibration]\ncolour = \"response-0123456789ab\"\n");
+        let line = bad.lines().position(|l| l.starts_with("colour =")).unwrap() + 1;
+        let (l, _, m) = err(&bad);
+        assert_eq!(l, line);
+        assert!(m.contains("not a colour calibration id"), "{m}");
+        let unknown = format!("{BUILTIN_LIGHTSTAGE}\n[calibration]\nlaser = \"x\"\n");
+        assert!(err(&unknown).2.contains("laser"));
     }
 
     #[test]

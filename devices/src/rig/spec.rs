@@ -26,6 +26,36 @@ pub struct RigSpec {
     /// `[sim]`, read and checked by the simulator.
     #[serde(default)]
     pub sim: SimTable,
+    /// `[calibration]`: the stored calibrations this rig's runs are processed with.
+    #[serde(default)]
+    pub calibration: CalibrationRefs,
+}
+
+/// The stored calibrations a rig uses, by id (`stagehand calibrations list`): recorded in the
+/// manifest of every run, and what `stagehand process` uses when given none.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationRefs {
+    /// A `response-…` calibration.
+    pub response: Option<String>,
+    /// A `colour-…` calibration.
+    pub colour: Option<String>,
+    /// A `geometry-…` calibration.
+    pub geometry: Option<String>,
+}
+
+impl CalibrationRefs {
+    /// (kind, id) of each calibration named, kinds in a fixed order.
+    pub fn named(&self) -> Vec<(&'static str, &str)> {
+        [
+            ("response", &self.response),
+            ("colour", &self.colour),
+            ("geometry", &self.geometry),
+        ]
+        .into_iter()
+        .filter_map(|(kind, id)| id.as_deref().map(|id| (kind, id)))
+        .collect()
+    }
 }
 
 /// Name and purpose of the rig.
