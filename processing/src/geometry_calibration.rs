@@ -8,6 +8,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use stagehand_dataset::layout;
 use stagehand_dataset::{FrameKind, FrameQuery};
@@ -19,7 +20,7 @@ use crate::calibrate_geometry::{CameraGeometry, CameraViews, Placement, calibrat
 use crate::checkerboard::{CheckerboardSpec, detect_checkerboard};
 use crate::error::ProcessingError;
 use crate::gray_image::GrayImage;
-use crate::run_frames::{dataset_err, decode_frame, open_run};
+use crate::run_frames::{dataset_err, decode_frame_in, open_run};
 
 /// One placement as the run recorded it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -110,29 +111,36 @@ pub fn calibrate_geometry_run(
         });
     }
     let points = board.board_points();
+    // Decoding and detection on every core; the views are then assembled in frame order.
+    let detected: Vec<_> = boards
+        .par_iter()
+        .map(|f| {
+            let png = decode_frame_in(run_dir, f)?;
+            let gray = GrayImage {
+                width: png.width as usize,
+                height: png.height as usize,
+                data: png
+                    .pixels
+                    .chunks_exact(3)
+                    .map(|p| (f32::from(p[0]) + f32::from(p[1]) + f32::from(p[2])) / 3.0)
+                    .collect(),
+            };
+            Ok(((png.width, png.height), detect_checkerboard(&gray, &board)))
+        })
+        .collect::<Result<_, ProcessingError>>()?;
     let mut cameras: BTreeMap<String, CameraViews> = BTreeMap::new();
     let mut frames = Vec::new();
     let mut not_detected = Vec::new();
-    for f in &boards {
-        let png = decode_frame(&reader, f)?;
-        let gray = GrayImage {
-            width: png.width as usize,
-            height: png.height as usize,
-            data: png
-                .pixels
-                .chunks_exact(3)
-                .map(|p| (f32::from(p[0]) + f32::from(p[1]) + f32::from(p[2])) / 3.0)
-                .collect(),
-        };
+    for (f, ((width, height), found)) in boards.iter().zip(detected) {
         let views = cameras
             .entry(f.meta.camera.clone())
             .or_insert_with(|| CameraViews {
                 camera: f.meta.camera.clone(),
-                width: png.width,
-                height: png.height,
+                width,
+                height,
                 views: Vec::new(),
             });
-        match detect_checkerboard(&gray, &board) {
+        match found {
             Ok(image) => {
                 views.views.push((
                     index_of_step[&f.meta.step],

@@ -5,6 +5,9 @@
 //! already made from the same frames, calibrations and settings are skipped, so an
 //! interrupted run resumes where it stopped.
 
+use std::path::Path;
+
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use stagehand_dataset::exr_hdr::encode_exr;
 use stagehand_dataset::products::{NewProduct, ProductStore};
@@ -12,8 +15,8 @@ use stagehand_dataset::products::{NewProduct, ProductStore};
 use crate::colour_calibration::ColourSet;
 use crate::error::ProcessingError;
 use crate::hdr_frame::{MergeWeight, PixelState, RgbExposure, merge_rgb_frames};
-use crate::response_calibration::ResponseSet;
-use crate::run_frames::{BracketKey, bracket_keys, decode_bracket, open_run};
+use crate::response_calibration::{CameraResponse, ResponseSet};
+use crate::run_frames::{BracketKey, bracket_keys, decode_frame_in, open_run};
 
 /// The calibrations an HDR product is made with.
 #[derive(Debug, Clone, Copy)]
@@ -100,89 +103,121 @@ pub fn hdr_products(
     }
     let mut summary = HdrSummary::default();
     let total = plans.len();
-    for (done, (key, response, scale)) in plans.into_iter().enumerate() {
-        let new = NewProduct {
-            kind: "hdr".into(),
-            key: format!("hdr/s{:06}/{}", key.step, key.camera),
-            file_name: format!("s{:06}_{}.exr", key.step, key.camera),
-            inputs: key.frames.iter().map(|f| f.path.clone()).collect(),
-            calibrations: calibrations.clone(),
-            software: software.to_string(),
-            parameters: serde_json::json!({
-                "weight": cal.weight,
-                "white_balance": scale,
-            }),
-        };
-        let current = store
-            .is_current(&new)
-            .map_err(|e| ProcessingError::Dataset {
-                run: run_dir.display().to_string(),
-                message: e.to_string(),
-            })?;
-        if current {
-            summary.skipped += 1;
-            progress(done + 1, total);
-            continue;
+    let mut done = 0;
+    // Batches of a few captures per core: merged on every core, written in order, so memory
+    // stays bounded whatever the run's size.
+    let batch = 2 * rayon::current_num_threads().max(1);
+    for chunk in plans.chunks(batch) {
+        let mut todo = Vec::new();
+        for (key, response, scale) in chunk {
+            let new = NewProduct {
+                kind: "hdr".into(),
+                key: format!("hdr/s{:06}/{}", key.step, key.camera),
+                file_name: format!("s{:06}_{}.exr", key.step, key.camera),
+                inputs: key.frames.iter().map(|f| f.path.clone()).collect(),
+                calibrations: calibrations.clone(),
+                software: software.to_string(),
+                parameters: serde_json::json!({
+                    "weight": cal.weight,
+                    "white_balance": scale,
+                }),
+            };
+            if store.is_current(&new).map_err(dataset_err(&run_dir))? {
+                summary.skipped += 1;
+                done += 1;
+                progress(done, total);
+            } else {
+                todo.push((*key, *response, *scale, new));
+            }
         }
-        let decoded = decode_bracket(&reader, key)?;
-        let bracket: Vec<RgbExposure<'_>> = decoded
-            .iter()
-            .map(|d| RgbExposure {
-                exposure_s: d.exposure_s,
-                dn: &d.dn,
+        let made: Vec<(NewProduct, Vec<u8>, u64, u64)> = todo
+            .into_par_iter()
+            .map(|(key, response, scale, new)| {
+                let (bytes, saturated, black) = merge_one(
+                    &run_dir,
+                    key,
+                    response,
+                    scale,
+                    &calibrations,
+                    &new,
+                    cal.weight,
+                )?;
+                Ok((new, bytes, saturated, black))
             })
-            .collect();
-        let (w, h) = (key.meta.width as usize, key.meta.height as usize);
-        let merged = merge_rgb_frames(
-            &bracket,
-            w,
-            h,
-            &response.channels,
-            scale.unwrap_or([1.0; 3]),
-            cal.weight,
-        )?;
-        let saturated = merged
-            .state
-            .iter()
-            .filter(|s| **s == PixelState::AtLeast)
-            .count() as u64;
-        let black = merged
-            .state
-            .iter()
-            .filter(|s| **s == PixelState::AtMost)
-            .count() as u64;
-        summary.saturated_samples += saturated;
-        summary.black_samples += black;
-        let metadata = serde_json::json!({
-            "camera": key.camera,
-            "step": key.step,
-            "lamps_on": key.meta.lamps_on,
-            "axes_deg": key.meta.axes_deg,
-            "exposures_s": key.frames.iter().map(|f| f.meta.exposure_s).collect::<Vec<_>>(),
-            "units": if scale.is_some() { "reflectance of a white diffuser" } else { "the response calibration's relative radiance" },
-            "saturated_samples": saturated,
-            "black_samples": black,
-            "calibrations": calibrations,
-        });
-        let bytes = encode_exr(
-            &new.file_name,
-            key.meta.width,
-            key.meta.height,
-            &merged.rgb,
-            &metadata.to_string(),
-        )
-        .map_err(|e| ProcessingError::Dataset {
-            run: run_dir.display().to_string(),
-            message: e.to_string(),
-        })?;
-        store
-            .write(new, &bytes)
-            .map_err(|e| ProcessingError::Dataset {
-                run: run_dir.display().to_string(),
-                message: e.to_string(),
-            })?;
-        summary.written += 1;
-        progress(done + 1, total);
+            .collect::<Result<_, ProcessingError>>()?;
+        for (new, bytes, saturated, black) in made {
+            store.write(new, &bytes).map_err(dataset_err(&run_dir))?;
+            summary.written += 1;
+            summary.saturated_samples += saturated;
+            summary.black_samples += black;
+            done += 1;
+            progress(done, total);
+        }
     }
     Ok(summary)
+}
+
+/// A dataset error of the run at `run`.
+fn dataset_err(run: &Path) -> impl Fn(stagehand_dataset::StorageError) -> ProcessingError + '_ {
+    move |e| ProcessingError::Dataset {
+        run: run.display().to_string(),
+        message: e.to_string(),
+    }
+}
+
+/// Merges one capture and encodes it: the OpenEXR bytes and the samples clipped and black in
+/// every exposure.
+fn merge_one(
+    run_dir: &Path,
+    key: &BracketKey,
+    response: &CameraResponse,
+    scale: Option<[f64; 3]>,
+    calibrations: &[String],
+    new: &NewProduct,
+    weight: MergeWeight,
+) -> Result<(Vec<u8>, u64, u64), ProcessingError> {
+    let decoded = key
+        .frames
+        .iter()
+        .map(|f| decode_frame_in(run_dir, f))
+        .collect::<Result<Vec<_>, _>>()?;
+    let bracket: Vec<RgbExposure<'_>> = decoded
+        .iter()
+        .zip(&key.frames)
+        .map(|(d, f)| RgbExposure {
+            exposure_s: f.meta.exposure_s,
+            dn: &d.pixels,
+        })
+        .collect();
+    let (w, h) = (key.meta.width as usize, key.meta.height as usize);
+    let merged = merge_rgb_frames(
+        &bracket,
+        w,
+        h,
+        &response.channels,
+        scale.unwrap_or([1.0; 3]),
+        weight,
+    )?;
+    let count = |state: PixelState| merged.state.iter().filter(|s| **s == state).count() as u64;
+    let (saturated, black) = (count(PixelState::AtLeast), count(PixelState::AtMost));
+    let metadata = serde_json::json!({
+        "camera": key.camera,
+        "step": key.step,
+        "lamps_on": key.meta.lamps_on,
+        "axes_deg": key.meta.axes_deg,
+        "exposures_s": key.frames.iter().map(|f| f.meta.exposure_s).collect::<Vec<_>>(),
+        "units": if scale.is_some() { "reflectance of a white diffuser" } else { "the response calibration's relative radiance" },
+        "saturated_samples": saturated,
+        "black_samples": black,
+        "calibrations": calibrations,
+    });
+    let bytes = encode_exr(
+        &new.file_name,
+        key.meta.width,
+        key.meta.height,
+        &merged.rgb,
+        &metadata.to_string(),
+    )
+    .map_err(dataset_err(run_dir))?;
+    Ok((bytes, saturated, black))
 }

@@ -83,7 +83,11 @@ pub fn bracket_keys(
 
 /// Decodes one raw frame, naming it (and what to do) when it cannot be read.
 pub fn decode_frame(reader: &RunReader, f: &StoredFrame) -> Result<DecodedPng, ProcessingError> {
-    let run = reader.dir();
+    decode_frame_in(reader.dir(), f)
+}
+
+/// [`decode_frame`] from the run directory `run` (no reader: callable from worker threads).
+pub fn decode_frame_in(run: &Path, f: &StoredFrame) -> Result<DecodedPng, ProcessingError> {
     let path = run.join(&f.path);
     let bytes = std::fs::read(&path).map_err(|e| ProcessingError::Dataset {
         run: run.display().to_string(),
