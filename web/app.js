@@ -930,6 +930,16 @@ async function loadRuns() {
     };
     renderRun();
   }
+  // A run whose end was seen only as its absence from the status (a status read that left
+  // before its run_finished event and arrived after it): the run list has how it ended.
+  if (!S.run && S.lastRun && S.lastRun.finished && S.lastRun.finished.status === 'ended') {
+    const r = runs.find((x) => x.run_id === S.lastRun.run_id);
+    if (r && r.status && r.status !== 'running') {
+      S.lastRun.finished = { status: r.status, message: r.message };
+      if (r.status === 'done') S.lastRun.progress = 1;
+      renderRun();
+    }
+  }
 }
 
 /** Local date and time of a Unix time: `2026-12-01 20:31:07`. */
