@@ -275,6 +275,39 @@ fn predict(grid: &Grid, points: &[(f64, f64)], (i, j): (i32, i32)) -> Option<((f
     None
 }
 
+/// The grid re-indexed so that it fills its bounding box, if a shear does it. A lattice grown
+/// on a steeply foreshortened board can take a diagonal for one of its steps: its cells then
+/// run (i + k·j, j), a parallelogram of index space. `None` if no shear up to ±3 makes it a
+/// rectangle (a hole or a stray corner).
+fn rectangular(grid: &Grid) -> Option<Grid> {
+    let fills = |g: &Grid| {
+        let (imin, imax, jmin, jmax) = g.keys().fold(
+            (i32::MAX, i32::MIN, i32::MAX, i32::MIN),
+            |(a, b, c, d), k| (a.min(k.0), b.max(k.0), c.min(k.1), d.max(k.1)),
+        );
+        g.len() as i64 == i64::from(imax - imin + 1) * i64::from(jmax - jmin + 1)
+    };
+    for k in [0, 1, -1, 2, -2, 3, -3] {
+        for along_i in [true, false] {
+            let sheared: Grid = grid
+                .iter()
+                .map(|(&(i, j), &p)| {
+                    let cell = if along_i {
+                        (i - k * j, j)
+                    } else {
+                        (i, j - k * i)
+                    };
+                    (cell, p)
+                })
+                .collect();
+            if sheared.len() == grid.len() && fills(&sheared) {
+                return Some(sheared);
+            }
+        }
+    }
+    None
+}
+
 /// The grid's corners in board order if it is exactly `cols × rows` (either way round).
 fn order_grid(
     grid: &Grid,
@@ -282,6 +315,7 @@ fn order_grid(
     spec: &CheckerboardSpec,
     smooth: &GrayImage,
 ) -> Option<Vec<(f64, f64)>> {
+    let grid = &rectangular(grid)?;
     let (imin, imax) = grid.keys().fold((i32::MAX, i32::MIN), |(lo, hi), c| {
         (lo.min(c.0), hi.max(c.0))
     });
@@ -289,9 +323,6 @@ fn order_grid(
         (lo.min(c.1), hi.max(c.1))
     });
     let (ni, nj) = ((imax - imin + 1) as usize, (jmax - jmin + 1) as usize);
-    if grid.len() != ni * nj {
-        return None;
-    }
     // Cell (a, b) in board order → grid cell, for each of the 8 orientations. A square board
     // (cols = rows) fits the grid either way round, so both ways are tried: a board turned a
     // quarter on the turntable is found only the other way round.

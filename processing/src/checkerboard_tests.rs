@@ -214,3 +214,22 @@ fn a_square_board_turned_a_quarter_is_found() {
         }
     }
 }
+
+#[test]
+fn a_lattice_grown_along_a_diagonal_is_made_rectangular_again() {
+    // Cells of a 4 × 3 grid indexed (i + j, j): a parallelogram in index space.
+    let sheared: Grid = (0..3)
+        .flat_map(|j| (0..4).map(move |i| ((i + j, j), (j * 4 + i) as usize)))
+        .collect();
+    let fixed = rectangular(&sheared).expect("a shear makes it rectangular");
+    for j in 0..3 {
+        for i in 0..4 {
+            assert_eq!(fixed[&(i, j)], (j * 4 + i) as usize);
+        }
+    }
+    // A hole cannot be sheared away.
+    let mut holed = fixed.clone();
+    holed.remove(&(2, 1));
+    holed.insert((9, 9), 99);
+    assert!(rectangular(&holed).is_none());
+}
