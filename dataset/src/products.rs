@@ -16,6 +16,10 @@ use crate::error::{Result, StorageError};
 use crate::index::{Index, now_unix_s, sql_err};
 use crate::layout;
 
+/// The columns [`row_to_product`] reads, in its order.
+const COLUMNS: &str = "kind, key, path, inputs, calibrations, software, parameters, sha256, \
+    size_bytes, created_unix_s";
+
 /// A product about to be written.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NewProduct {
@@ -82,8 +86,7 @@ impl ProductStore {
         self.index
             .conn()
             .query_row(
-                "SELECT kind, key, path, inputs, calibrations, software, parameters, sha256,
-                        size_bytes, created_unix_s FROM products WHERE key = ?1",
+                &format!("SELECT {COLUMNS} FROM products WHERE key = ?1"),
                 [key],
                 row_to_product,
             )
@@ -161,10 +164,7 @@ impl ProductStore {
 /// Every product row of the index at `index` (schema ≥ 4), in key order.
 pub(crate) fn list(conn: &rusqlite::Connection, index: &Path) -> Result<Vec<StoredProduct>> {
     let mut stmt = conn
-        .prepare(
-            "SELECT kind, key, path, inputs, calibrations, software, parameters, sha256,
-                    size_bytes, created_unix_s FROM products ORDER BY key",
-        )
+        .prepare(&format!("SELECT {COLUMNS} FROM products ORDER BY key"))
         .map_err(sql_err(index, "list products"))?;
     let rows = stmt
         .query_map([], row_to_product)

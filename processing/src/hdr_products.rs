@@ -16,7 +16,7 @@ use crate::colour_calibration::ColourSet;
 use crate::error::ProcessingError;
 use crate::hdr_frame::{MergeWeight, PixelState, RgbExposure, merge_rgb_frames};
 use crate::response_calibration::{CameraResponse, ResponseSet};
-use crate::run_frames::{BracketKey, bracket_keys, decode_frame_in, open_run};
+use crate::run_frames::{BracketKey, bracket_keys, dataset_err, decode_frame_in, open_run};
 
 /// The calibrations an HDR product is made with.
 #[derive(Debug, Clone, Copy)]
@@ -155,14 +155,6 @@ pub fn hdr_products(
         }
     }
     Ok(summary)
-}
-
-/// A dataset error of the run at `run`.
-fn dataset_err(run: &Path) -> impl Fn(stagehand_dataset::StorageError) -> ProcessingError + '_ {
-    move |e| ProcessingError::Dataset {
-        run: run.display().to_string(),
-        message: e.to_string(),
-    }
 }
 
 /// Merges one capture and encodes it: the OpenEXR bytes and the samples clipped and black in

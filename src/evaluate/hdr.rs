@@ -61,6 +61,14 @@ pub fn evaluate_hdr(
     if products.is_empty() {
         return Ok(None);
     }
+    // Every frame row once, by path: each product names its frames by path.
+    let frames_by_path: BTreeMap<String, _> = reader
+        .frames(&FrameQuery::default())
+        .map_err(|e| err(e.to_string()))?
+        .frames
+        .into_iter()
+        .map(|f| (f.path.clone(), f))
+        .collect();
     let mut responses: BTreeMap<String, ResponseSet> = BTreeMap::new();
     let (mut ours, mut linear) = (Vec::new(), Vec::new());
     let mut compared = 0;
@@ -90,12 +98,8 @@ pub fn evaluate_hdr(
             .inputs
             .first()
             .ok_or_else(|| err(format!("{} lists no input frames", product.path)))?;
-        let frame = reader
-            .frames(&FrameQuery::default())
-            .map_err(|e| err(e.to_string()))?
-            .frames
-            .into_iter()
-            .find(|f| &f.path == first)
+        let frame = frames_by_path
+            .get(first)
             .ok_or_else(|| err(format!("{first} is not in the index")))?;
         let (step, camera) = (frame.meta.step, frame.meta.camera.clone());
         let Some(truth) = reader
