@@ -196,6 +196,15 @@ pub enum StorageError {
         reason: String,
     },
 
+    /// A product cannot be written as described.
+    #[error("product {key}: {reason}")]
+    InvalidProduct {
+        /// The product's key.
+        key: String,
+        /// What is wrong.
+        reason: String,
+    },
+
     /// PNG encoding failed.
     #[error("cannot encode PNG {name}: {source}")]
     PngEncode {

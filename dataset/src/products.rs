@@ -27,7 +27,8 @@ pub struct NewProduct {
     pub kind: String,
     /// What it is of, unique in the run (e.g. `hdr/s000012/cam3`).
     pub key: String,
-    /// File name under `products/<kind>/`.
+    /// File name under `products/<kind>/`; it may hold `/`-separated folders (a Zarr chunk's
+    /// `btf.zarr/radiance/c/0/3/0/0/0`), never `..`, `.` or an empty part.
     pub file_name: String,
     /// The frames it was made from (paths relative to the run directory).
     pub inputs: Vec<String>,
@@ -118,10 +119,28 @@ impl ProductStore {
     /// key) and indexes it.
     pub fn write(&mut self, new: NewProduct, bytes: &[u8]) -> Result<StoredProduct> {
         let kind_dir = self.dir.join(layout::PRODUCTS_DIR).join(&new.kind);
-        std::fs::create_dir_all(&kind_dir)
-            .map_err(|e| StorageError::io("create product directory", &kind_dir, e))?;
-        write_atomic(&kind_dir, &new.file_name, bytes)?;
-        fsync_dir(&kind_dir)?;
+        let parts: Vec<&str> = new.file_name.split('/').collect();
+        let bad = |p: &&str| p.is_empty() || *p == "." || *p == "..";
+        let (Some((name, folders)), false) = (parts.split_last(), parts.iter().any(bad)) else {
+            return Err(StorageError::InvalidProduct {
+                key: new.key.clone(),
+                reason: format!(
+                    "its file `{}` must be a relative path without empty, `.` or `..` parts",
+                    new.file_name
+                ),
+            });
+        };
+        if new.kind.is_empty() || new.kind.contains('/') || new.kind.starts_with('.') {
+            return Err(StorageError::InvalidProduct {
+                key: new.key.clone(),
+                reason: format!("its kind `{}` must be one folder name", new.kind),
+            });
+        }
+        let file_dir = folders.iter().fold(kind_dir, |d, f| d.join(f));
+        std::fs::create_dir_all(&file_dir)
+            .map_err(|e| StorageError::io("create product directory", &file_dir, e))?;
+        write_atomic(&file_dir, name, bytes)?;
+        fsync_dir(&file_dir)?;
         let stored = StoredProduct {
             path: format!("{}/{}/{}", layout::PRODUCTS_DIR, new.kind, new.file_name),
             sha256: sha256_hex(bytes),
@@ -204,7 +223,8 @@ fn row_to_product(r: &rusqlite::Row<'_>) -> rusqlite::Result<StoredProduct> {
     };
     let path: String = r.get(2)?;
     let kind: String = r.get(0)?;
-    let file_name = path.rsplit('/').next().unwrap_or_default().to_string();
+    let prefix = format!("{}/{kind}/", layout::PRODUCTS_DIR);
+    let file_name = path.strip_prefix(&prefix).unwrap_or(&path).to_string();
     let size: i64 = r.get(8)?;
     Ok(StoredProduct {
         made: NewProduct {

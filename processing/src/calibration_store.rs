@@ -243,6 +243,30 @@ impl StoredCalibration {
         })
     }
 
+    /// The cameras of a geometry calibration: its result is a list of [`CameraGeometry`], a
+    /// map by camera id, or either under a `cameras` key (a [`GeometryCalibration`]).
+    ///
+    /// [`CameraGeometry`]: crate::calibrate_geometry::CameraGeometry
+    /// [`GeometryCalibration`]: crate::geometry_calibration::GeometryCalibration
+    pub fn cameras(
+        &self,
+    ) -> Result<Vec<crate::calibrate_geometry::CameraGeometry>, CalibrationStoreError> {
+        use crate::calibrate_geometry::CameraGeometry;
+        let value: serde_json::Value = self.result(CalibrationKind::Geometry)?;
+        let cameras = value.get("cameras").unwrap_or(&value);
+        if let Ok(list) = serde_json::from_value::<Vec<CameraGeometry>>(cameras.clone()) {
+            return Ok(list);
+        }
+        serde_json::from_value::<std::collections::BTreeMap<String, CameraGeometry>>(
+            cameras.clone(),
+        )
+        .map(|m| m.into_values().collect())
+        .map_err(|e| CalibrationStoreError::Storage {
+            id: self.id.clone(),
+            message: format!("its result holds no camera geometries ({e})"),
+        })
+    }
+
     /// Checks that the calibration covers every camera in `cameras` and lamp in `lamps`.
     pub fn check_covers(
         &self,

@@ -9,7 +9,7 @@
 //! pose error does to a small chart) by pattern search. With a calibrated geometry the
 //! correction comes out near the identity, and its size is a quality figure of the geometry.
 
-use nalgebra::{Rotation3, Vector3};
+use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use crate::camera_model::{CameraModel, Pose};
@@ -84,16 +84,6 @@ fn correct(centre: [f64; 2], offset: [f64; 2], m: &[[f64; 2]; 2], q: [f64; 2]) -
         centre[0] + m[0][0] * d[0] + m[0][1] * d[1] + offset[0],
         centre[1] + m[1][0] * d[0] + m[1][1] * d[1] + offset[1],
     ]
-}
-
-/// The chart → camera pose of a camera with `rig_to_camera` when the turntable is at
-/// `turntable_deg` (the chart turns with the table about the rig's z axis).
-pub fn chart_to_camera(rig_to_camera: &Pose, turntable_deg: f64) -> Pose {
-    let table = Rotation3::from_axis_angle(&Vector3::z_axis(), turntable_deg.to_radians());
-    Pose::from_parts(
-        &(rig_to_camera.rotation_matrix() * table),
-        Vector3::from(rig_to_camera.translation),
-    )
 }
 
 /// Image position of chart-plane point `p` (sample frame, z = 0).
@@ -376,7 +366,7 @@ pub fn locate_chart(
 pub struct PlacedChart<'a> {
     /// The camera's intrinsics and distortion.
     pub model: &'a CameraModel,
-    /// Chart → camera pose from the geometry ([`chart_to_camera`]).
+    /// Chart → camera pose from the geometry ([`crate::rig_frame::sample_to_camera`]).
     pub pose: Pose,
     /// The chart's layout.
     pub layout: ChartLayout,

@@ -19,11 +19,12 @@ use serde::{Deserialize, Serialize};
 
 use crate::calibrate_geometry::CameraGeometry;
 use crate::chart_layout::{ChartLayout, PATCHES};
-use crate::chart_locate::{ChartFit, LocateOptions, PlacedChart, chart_to_camera, locate_chart};
+use crate::chart_locate::{ChartFit, LocateOptions, PlacedChart, locate_chart};
 use crate::error::ProcessingError;
 use crate::gray_image::GrayImage;
 use crate::hdr_frame::{HdrFrame, MergeWeight, PixelState, RgbExposure, merge_rgb_frames};
 use crate::response_calibration::{CameraResponse, ResponseSet};
+use crate::rig_frame::sample_to_camera;
 use crate::run_frames::{BracketKey, bracket_keys, decode_bracket, open_run};
 use crate::white_balance::{PatchMeasurement, WhiteBalance, patch_mean, white_balance};
 
@@ -206,7 +207,7 @@ pub fn measure_view(
             }),
         });
     }
-    let pose = chart_to_camera(&geometry.rig_to_camera, turntable_deg);
+    let pose = sample_to_camera(&geometry.rig_to_camera, turntable_deg);
     let fit = locate_chart(
         &luminance,
         &geometry.model,

@@ -85,7 +85,7 @@ fn render(
 ) -> HdrFrame {
     let layout = ChartLayout::default();
     let (w, h) = (480usize, 360usize);
-    let pose = chart_to_camera(&camera.rig_to_camera, turntable_deg);
+    let pose = sample_to_camera(&camera.rig_to_camera, turntable_deg);
     let rt = pose.rotation_matrix().transpose();
     let centre = -(rt * Vector3::from(pose.translation));
     let mut noise = Noise(seed | 1);

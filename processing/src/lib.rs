@@ -24,16 +24,20 @@
 //! | [`chart_locate`] | finding the colour checker in an image from a camera's geometry |
 //! | [`colour_calibration`] | every camera's scales under every lamp from a colour-checker run |
 //! | [`nominal_geometry`] | a camera's geometry as the rig file describes it |
+//! | [`capture_products`] | `process`: captures merged once, written as HDR, rectified and BTF products |
 //! | [`run_frames`] | a run's raw brackets, listed and decoded one at a time |
 //! | [`calibration_store`] | calibrations as content-addressed, versioned artefacts |
-//! | [`zarr_array`] | a Zarr v3 array writer (uncompressed chunks) for the BTF |
+//! | [`zarr_array`] | Zarr v3 arrays described and encoded (uncompressed chunks) for the BTF |
+//! | [`btf_layout`] | which capture fills each BTF cell, views and lights in sample-frame angles |
 //! | [`error`] | typed errors |
 #![deny(unsafe_code)]
 
+pub mod btf_layout;
 pub mod calibrate_camera;
 pub mod calibrate_geometry;
 pub mod calibration_store;
 pub mod camera_model;
+pub mod capture_products;
 pub mod chart_layout;
 pub mod chart_locate;
 pub mod checkerboard;
@@ -43,7 +47,6 @@ pub mod error;
 pub mod geometry_calibration;
 pub mod gray_image;
 pub mod hdr_frame;
-pub mod hdr_products;
 pub mod homography;
 pub mod nominal_geometry;
 pub mod rectify;

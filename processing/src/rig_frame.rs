@@ -121,6 +121,17 @@ pub fn rig_to_camera(axis: &TurntableAxis, reference: &Pose) -> Result<Pose, Pro
     Ok(Pose::from_parts(&r, Vector3::from(axis.point)))
 }
 
+/// The sample → camera pose of a camera with `rig_to_camera` when the turntable is at
+/// `turntable_deg`: the sample (and anything lying on the table: a chart, a board) turns with
+/// the table about the rig's z axis, and the sample frame is the rig frame at 0°.
+pub fn sample_to_camera(rig_to_camera: &Pose, turntable_deg: f64) -> Pose {
+    let table = Rotation3::from_axis_angle(&Vector3::z_axis(), turntable_deg.to_radians());
+    Pose::from_parts(
+        &(rig_to_camera.rotation_matrix() * table),
+        Vector3::from(rig_to_camera.translation),
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

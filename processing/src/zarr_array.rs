@@ -1,18 +1,15 @@
-//! A writer of Zarr v3 arrays (the format Python's `zarr` reads): a `zarr.json` with the
-//! shape, chunk grid, data type and attributes, and one file per chunk under `c/…` holding its
-//! values little-endian with no compression (the `bytes` codec). Chunks never written read back
-//! as the fill value. Every file is written atomically, so an interrupted write leaves whole
-//! chunks only, and rewriting a chunk (a resumed `process`) replaces it.
+//! Zarr v3 arrays (the format Python's `zarr` reads), described and encoded here and written
+//! by the caller (as products, atomically and indexed): an array's `zarr.json` holds its shape,
+//! chunk grid, data type and attributes, and each chunk is one file `c/i/j/…` of its values,
+//! little-endian, uncompressed (the `bytes` codec). Chunks never written read back as the fill
+//! value (0). A group's `zarr.json` only says it is a group.
 //!
-//! Written here rather than with the `zarrs` crate: these ~100 lines cover the one layout the
+//! Written here rather than with the `zarrs` crate: these lines cover the one layout the
 //! products need, where `zarrs` would add 130 crates to every build; the tests read the arrays
 //! back by the spec, and Python's `zarr` 3.1 reads them (checked when this was written:
 //! shape, chunks, attributes and values).
 
-use std::path::{Path, PathBuf};
-
 use serde_json::{Value, json};
-use stagehand_dataset::atomic::{fsync_dir, write_atomic};
 
 use crate::error::ProcessingError;
 
@@ -41,27 +38,24 @@ impl ZarrType {
     }
 }
 
-/// An array being written.
+/// An array's description: shape, chunk shape, element type, dimension names, attributes.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ZarrArray {
-    dir: PathBuf,
     shape: Vec<u64>,
     chunk: Vec<u64>,
     dtype: ZarrType,
+    metadata: Value,
 }
 
-fn io_err(path: &Path, e: impl std::fmt::Display) -> ProcessingError {
-    ProcessingError::Dataset {
-        run: path.display().to_string(),
-        message: format!("cannot write the Zarr array: {e}"),
-    }
+/// The `zarr.json` of a group holding `attributes`.
+pub fn group_metadata(attributes: Value) -> Vec<u8> {
+    let meta = json!({"zarr_format": 3, "node_type": "group", "attributes": attributes});
+    serde_json::to_vec_pretty(&meta).unwrap_or_default()
 }
 
 impl ZarrArray {
-    /// Creates (or reopens, keeping its chunks) the array at `dir` with `shape`, `chunk` shape,
-    /// element type, dimension names and attributes.
-    pub fn create(
-        dir: &Path,
+    /// Describes an array of `shape` in chunks of `chunk`, with one name per dimension.
+    pub fn new(
         shape: &[u64],
         chunk: &[u64],
         dtype: ZarrType,
@@ -78,8 +72,7 @@ impl ZarrArray {
                 why: "shape, chunk shape and dimension names need one entry per dimension, chunks ≥ 1",
             });
         }
-        std::fs::create_dir_all(dir).map_err(|e| io_err(dir, e))?;
-        let meta = json!({
+        let metadata = json!({
             "zarr_format": 3,
             "node_type": "array",
             "shape": shape,
@@ -91,15 +84,17 @@ impl ZarrArray {
             "attributes": attributes,
             "dimension_names": dimension_names,
         });
-        let bytes = serde_json::to_vec_pretty(&meta).map_err(|e| io_err(dir, e))?;
-        write_atomic(dir, "zarr.json", &bytes).map_err(|e| io_err(dir, e))?;
-        fsync_dir(dir).map_err(|e| io_err(dir, e))?;
         Ok(ZarrArray {
-            dir: dir.to_path_buf(),
             shape: shape.to_vec(),
             chunk: chunk.to_vec(),
             dtype,
+            metadata,
         })
+    }
+
+    /// The bytes of the array's `zarr.json`.
+    pub fn metadata(&self) -> Vec<u8> {
+        serde_json::to_vec_pretty(&self.metadata).unwrap_or_default()
     }
 
     /// Elements per chunk.
@@ -107,65 +102,53 @@ impl ZarrArray {
         self.chunk.iter().product::<u64>() as usize
     }
 
-    /// The file of chunk `index` (chunk coordinates).
-    pub fn chunk_path(&self, index: &[u64]) -> PathBuf {
-        let mut p = self.dir.join("c");
-        for i in index {
-            p.push(i.to_string());
-        }
-        p
-    }
-
-    fn check_index(&self, index: &[u64], len: usize) -> Result<(), ProcessingError> {
+    /// The path of chunk `index` (chunk coordinates) relative to the array's folder,
+    /// `c/i/j/…`; an index outside the chunk grid is an error.
+    pub fn chunk_key(&self, index: &[u64]) -> Result<String, ProcessingError> {
         let inside = index.len() == self.shape.len()
             && index
                 .iter()
                 .zip(self.shape.iter().zip(&self.chunk))
                 .all(|(&i, (&s, &c))| i < s.div_ceil(c));
-        if !inside || len != self.chunk_len() {
+        if !inside {
+            return Err(ProcessingError::BadParameter {
+                name: "zarr chunk index",
+                value: index.len() as f64,
+                why: "the chunk index is outside the array's chunk grid",
+            });
+        }
+        let parts: Vec<String> = index.iter().map(u64::to_string).collect();
+        Ok(format!("c/{}", parts.join("/")))
+    }
+
+    fn check(&self, len: usize, dtype: ZarrType) -> Result<(), ProcessingError> {
+        if dtype != self.dtype {
+            return Err(ProcessingError::BadParameter {
+                name: "zarr data type",
+                value: 0.0,
+                why: "the values are not of the array's data type",
+            });
+        }
+        if len != self.chunk_len() {
             return Err(ProcessingError::BadParameter {
                 name: "zarr chunk",
                 value: len as f64,
-                why: "the chunk index is outside the grid or the data is not one whole chunk",
+                why: "the data is not one whole chunk",
             });
         }
         Ok(())
     }
 
-    fn write_bytes(&self, index: &[u64], bytes: &[u8]) -> Result<(), ProcessingError> {
-        let path = self.chunk_path(index);
-        let parent = path.parent().unwrap_or(&self.dir);
-        std::fs::create_dir_all(parent).map_err(|e| io_err(parent, e))?;
-        let name = index.last().map_or_else(|| "0".to_string(), u64::to_string);
-        write_atomic(parent, &name, bytes).map_err(|e| io_err(parent, e))?;
-        fsync_dir(parent).map_err(|e| io_err(parent, e))
+    /// The bytes of one whole chunk of f32 values (C order within the chunk).
+    pub fn encode_f32(&self, data: &[f32]) -> Result<Vec<u8>, ProcessingError> {
+        self.check(data.len(), ZarrType::Float32)?;
+        Ok(data.iter().flat_map(|v| v.to_le_bytes()).collect())
     }
 
-    /// Writes one whole chunk of f32 values (C order within the chunk).
-    pub fn write_f32(&self, index: &[u64], data: &[f32]) -> Result<(), ProcessingError> {
-        self.check_index(index, data.len())?;
-        if self.dtype != ZarrType::Float32 {
-            return Err(ProcessingError::BadParameter {
-                name: "zarr data type",
-                value: 0.0,
-                why: "this array does not hold float32",
-            });
-        }
-        let bytes: Vec<u8> = data.iter().flat_map(|v| v.to_le_bytes()).collect();
-        self.write_bytes(index, &bytes)
-    }
-
-    /// Writes one whole chunk of bytes (C order within the chunk).
-    pub fn write_u8(&self, index: &[u64], data: &[u8]) -> Result<(), ProcessingError> {
-        self.check_index(index, data.len())?;
-        if self.dtype != ZarrType::Uint8 {
-            return Err(ProcessingError::BadParameter {
-                name: "zarr data type",
-                value: 0.0,
-                why: "this array does not hold uint8",
-            });
-        }
-        self.write_bytes(index, data)
+    /// The bytes of one whole chunk of u8 values (C order within the chunk).
+    pub fn encode_u8(&self, data: &[u8]) -> Result<Vec<u8>, ProcessingError> {
+        self.check(data.len(), ZarrType::Uint8)?;
+        Ok(data.to_vec())
     }
 }
 
@@ -174,10 +157,8 @@ mod tests {
     use super::*;
 
     #[test]
-    fn writes_the_v3_layout_a_reader_expects() {
-        let dir = tempfile::tempdir().unwrap();
-        let arr = ZarrArray::create(
-            &dir.path().join("btf.zarr"),
+    fn describes_the_v3_layout_a_reader_expects() {
+        let arr = ZarrArray::new(
             &[2, 3, 4, 4, 3],
             &[1, 1, 4, 4, 3],
             ZarrType::Float32,
@@ -185,25 +166,28 @@ mod tests {
             json!({"units": "white diffuser"}),
         )
         .unwrap();
-        let data: Vec<f32> = (0..48).map(|i| i as f32 * 0.5).collect();
-        arr.write_f32(&[1, 2, 0, 0, 0], &data).unwrap();
-        let meta: Value =
-            serde_json::from_slice(&std::fs::read(dir.path().join("btf.zarr/zarr.json")).unwrap())
-                .unwrap();
+        let meta: Value = serde_json::from_slice(&arr.metadata()).unwrap();
         assert_eq!(meta["zarr_format"], 3);
+        assert_eq!(meta["node_type"], "array");
         assert_eq!(meta["shape"], json!([2, 3, 4, 4, 3]));
         assert_eq!(
             meta["chunk_grid"]["configuration"]["chunk_shape"],
             json!([1, 1, 4, 4, 3])
         );
-        let bytes = std::fs::read(dir.path().join("btf.zarr/c/1/2/0/0/0")).unwrap();
+        assert_eq!(meta["attributes"]["units"], "white diffuser");
+        assert_eq!(arr.chunk_key(&[1, 2, 0, 0, 0]).unwrap(), "c/1/2/0/0/0");
+        let data: Vec<f32> = (0..48).map(|i| i as f32 * 0.5).collect();
+        let bytes = arr.encode_f32(&data).unwrap();
         let back: Vec<f32> = bytes
             .chunks_exact(4)
             .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
             .collect();
         assert_eq!(back, data);
-        assert!(arr.write_f32(&[2, 0, 0, 0, 0], &data).is_err());
-        assert!(arr.write_f32(&[0, 0, 0, 0, 0], &data[..10]).is_err());
-        assert!(arr.write_u8(&[0, 0, 0, 0, 0], &[0; 48]).is_err());
+        assert!(arr.chunk_key(&[2, 0, 0, 0, 0]).is_err());
+        assert!(arr.chunk_key(&[0, 0]).is_err());
+        assert!(arr.encode_f32(&data[..10]).is_err());
+        assert!(arr.encode_u8(&[0; 48]).is_err());
+        let group: Value = serde_json::from_slice(&group_metadata(json!({"a": 1}))).unwrap();
+        assert_eq!(group["node_type"], "group");
     }
 }

@@ -67,26 +67,6 @@ pub fn nominal_camera(cam: &stagehand_devices::rig::CameraSpec) -> NominalCamera
     }
 }
 
-/// The cameras of a geometry calibration's result: a list of [`CameraGeometry`], a map by
-/// camera id, or either under a `cameras` key.
-fn decode_geometry(stored: &StoredCalibration) -> Result<Vec<CameraGeometry>, SessionError> {
-    let value: serde_json::Value = stored
-        .result(CalibrationKind::Geometry)
-        .map_err(store_err)?;
-    let cameras = value.get("cameras").unwrap_or(&value);
-    if let Ok(list) = serde_json::from_value::<Vec<CameraGeometry>>(cameras.clone()) {
-        return Ok(list);
-    }
-    serde_json::from_value::<BTreeMap<String, CameraGeometry>>(cameras.clone())
-        .map(|m| m.into_values().collect())
-        .map_err(|e| {
-            SessionError::Io(format!(
-                "calibration {}: its result holds no camera geometries ({e})",
-                stored.id
-            ))
-        })
-}
-
 /// Each camera's geometry: from calibration `id` (which must cover every camera of `rig`), or
 /// nominal from the rig file.
 fn geometry(
@@ -99,7 +79,7 @@ fn geometry(
         Some(id) => {
             let stored = calibration_store::load(root, id).map_err(store_err)?;
             stored.check_covers(cameras, &[]).map_err(store_err)?;
-            decode_geometry(&stored)?
+            stored.cameras().map_err(store_err)?
         }
         None => rig
             .cameras

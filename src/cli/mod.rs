@@ -130,7 +130,7 @@ enum Command {
         #[command(subcommand)]
         command: calibrate::CalibrateCommand,
     },
-    /// Make products from a run's frames with stored calibrations (HDR radiance), written
+    /// Make products from a run's frames with stored calibrations (HDR radiance, rectified images, the BTF), written
     /// into the run and indexed; an interrupted process resumes.
     Process(process::ProcessArgs),
     /// List or show stored calibrations.

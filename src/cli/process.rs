@@ -1,17 +1,26 @@
 //! `stagehand process RUN`: products computed from a run's frames with stored calibrations,
-//! written into the run (`products/`, indexed in its `products` table). An interrupted
-//! `process` resumes: products already made the same way are skipped.
+//! written into the run (`products/`, indexed in its `products` table): HDR images, images
+//! rectified onto the reference plane, and the BTF. An interrupted `process` resumes:
+//! products already made the same way are skipped.
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use stagehand_dataset::products::ProductStore;
+use stagehand_devices::rig::{AxisRole, LampKind, parse_rig};
+use stagehand_processing::btf_layout::{BtfAxes, LampPlacement, btf_layout};
+use stagehand_processing::calibrate_geometry::CameraGeometry;
 use stagehand_processing::calibration_store::{self, CalibrationKind};
+use stagehand_processing::capture_products::{
+    HdrCalibrations, Outputs, ProductSummary, Rectification, capture_products,
+};
 use stagehand_processing::colour_calibration::ColourSet;
 use stagehand_processing::hdr_frame::MergeWeight;
-use stagehand_processing::hdr_products::{HdrCalibrations, hdr_products};
+use stagehand_processing::rectify::RectifyGrid;
 use stagehand_processing::response_calibration::ResponseSet;
+use stagehand_processing::run_frames::{bracket_keys, open_run};
 
 use super::calibrate::{processing_err, root_of, store_err};
 use crate::session::SessionError;
@@ -22,6 +31,12 @@ pub enum Product {
     /// HDR radiance per capture and camera (OpenEXR), through the response calibration and,
     /// when given, the colour calibration's white balance.
     Hdr,
+    /// Each capture's HDR radiance rectified onto the reference plane (OpenEXR RGBA, A = 1
+    /// where the camera saw the pixel), through the geometric calibration.
+    Rectified,
+    /// The BTF: one Zarr v3 group `products/btf/btf.zarr` with `radiance [view, light, y, x,
+    /// rgb]` and `seen [view, y, x]`, views and lights in sample-frame angles.
+    Btf,
 }
 
 /// Arguments of `stagehand process`.
@@ -33,93 +48,281 @@ pub struct ProcessArgs {
     #[arg(long, value_enum, value_delimiter = ',', default_value = "hdr")]
     pub products: Vec<Product>,
     /// A calibration to use, by id (repeatable): one `response-…`, optionally one `colour-…`,
-    /// from `calibrations/` beside the run. Default: those the run's rig file named
-    /// (`[calibration]`, recorded in its manifest).
+    /// and for `rectified` and `btf` one `geometry-…`, from `calibrations/` beside the run.
+    /// Default: those the run's rig file named (`[calibration]`, recorded in its manifest).
     #[arg(long = "calibration")]
     pub calibrations: Vec<String>,
+    /// Pixels per side of rectified images and the BTF (the seed uses 128 or 256).
+    #[arg(long, default_value_t = 256)]
+    pub size_px: usize,
+    /// Side of the square of the reference plane to rectify, mm. Default: the simulated
+    /// sample's size; required for a real rig's runs.
+    #[arg(long)]
+    pub square_mm: Option<f64>,
+    /// Centre of that square on the reference plane, mm (x,y in the sample frame).
+    #[arg(long, value_delimiter = ',', num_args = 2, default_values_t = [0.0, 0.0])]
+    pub centre_mm: Vec<f64>,
+    /// Only these cameras' captures, comma-separated (e.g. those a geometric calibration
+    /// covers). Default: every camera's.
+    #[arg(long, value_delimiter = ',')]
+    pub cameras: Vec<String>,
     /// Print the summary as JSON.
     #[arg(long)]
     pub json: bool,
 }
 
-/// Runs `stagehand process`.
-pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
-    let root = root_of(&args.run_dir);
-    let ids = if args.calibrations.is_empty() {
-        let manifest = stagehand_dataset::read_manifest(&args.run_dir)
-            .map_err(|e| SessionError::Io(e.to_string()))?;
-        manifest
-            .calibrations
-            .iter()
-            .filter(|(kind, _)| matches!(kind.as_str(), "response" | "colour"))
-            .map(|(_, id)| id.clone())
-            .collect()
-    } else {
-        args.calibrations.clone()
-    };
-    let mut response: Option<(ResponseSet, String)> = None;
-    let mut colour: Option<(ColourSet, String)> = None;
-    for id in &ids {
-        let stored = calibration_store::load(&root, id).map_err(store_err)?;
+/// The calibrations `process` was given or found, decoded.
+#[derive(Default)]
+struct Calibrations {
+    response: Option<(ResponseSet, String)>,
+    colour: Option<(ColourSet, String)>,
+    geometry: Option<(BTreeMap<String, CameraGeometry>, String)>,
+}
+
+/// Loads calibrations `ids`, at most one of each kind.
+fn load_calibrations(root: &std::path::Path, ids: &[String]) -> Result<Calibrations, SessionError> {
+    let mut found = Calibrations::default();
+    for id in ids {
+        let stored = calibration_store::load(root, id).map_err(store_err)?;
         let kind = stored.calibration.kind;
-        let twice = |kind: &str| {
+        let twice = || {
             SessionError::Io(format!(
-                "--calibration {id}: a {kind} calibration is given twice; give one"
+                "--calibration {id}: a {} calibration is given twice; give one",
+                kind.as_str()
             ))
         };
         match kind {
-            CalibrationKind::Response if response.is_some() => return Err(twice("response")),
+            CalibrationKind::Response if found.response.is_some() => return Err(twice()),
             CalibrationKind::Response => {
-                response = Some((stored.result(kind).map_err(store_err)?, stored.id.clone()));
+                found.response = Some((stored.result(kind).map_err(store_err)?, stored.id.clone()));
             }
-            CalibrationKind::Colour if colour.is_some() => return Err(twice("colour")),
+            CalibrationKind::Colour if found.colour.is_some() => return Err(twice()),
             CalibrationKind::Colour => {
-                colour = Some((stored.result(kind).map_err(store_err)?, stored.id.clone()));
+                found.colour = Some((stored.result(kind).map_err(store_err)?, stored.id.clone()));
+            }
+            CalibrationKind::Geometry if found.geometry.is_some() => return Err(twice()),
+            CalibrationKind::Geometry => {
+                let cameras = stored
+                    .cameras()
+                    .map_err(store_err)?
+                    .into_iter()
+                    .map(|g| (g.camera.clone(), g))
+                    .collect();
+                found.geometry = Some((cameras, stored.id.clone()));
             }
             other => {
                 return Err(SessionError::Io(format!(
-                    "--calibration {id}: the hdr product does not use a {} calibration; give a response and optionally a colour calibration",
+                    "--calibration {id}: processing does not use a {} calibration; give a response, optionally a colour, and for rectified images a geometry calibration",
                     other.as_str()
                 )));
             }
         }
     }
-    let (responses, response_id) = response.ok_or_else(|| {
+    Ok(found)
+}
+
+/// Runs `stagehand process`.
+pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
+    let root = root_of(&args.run_dir);
+    let manifest =
+        stagehand_dataset::read_manifest(&args.run_dir).map_err(SessionError::Storage)?;
+    let ids: Vec<String> = if args.calibrations.is_empty() {
+        manifest
+            .calibrations
+            .iter()
+            .filter(|(kind, _)| matches!(kind.as_str(), "response" | "colour" | "geometry"))
+            .map(|(_, id)| id.clone())
+            .collect()
+    } else {
+        args.calibrations.clone()
+    };
+    let found = load_calibrations(&root, &ids)?;
+    let (responses, response_id) = found.response.ok_or_else(|| {
         SessionError::Io(
             "process needs a response calibration: --calibration response-…, or name one in the rig file's [calibration] table before the capture (make one with `stagehand calibrate response`)".into(),
         )
     })?;
+    let want = |p: Product| args.products.contains(&p);
+    let rectifying = want(Product::Rectified) || want(Product::Btf);
+    let rig = parse_rig(
+        &manifest.rig_toml,
+        &args
+            .run_dir
+            .join(stagehand_dataset::layout::RIG)
+            .display()
+            .to_string(),
+    )?;
+    let cameras = (!args.cameras.is_empty()).then_some(args.cameras.as_slice());
+    if let Some(unknown) = args.cameras.iter().find(|c| rig.camera(c).is_none()) {
+        return Err(SessionError::Io(format!(
+            "--cameras: the run's rig has no camera `{unknown}`; it has {}",
+            rig.cameras
+                .iter()
+                .map(|c| c.id.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        )));
+    }
+    let turntable = rig
+        .axis_with_role(AxisRole::Turntable)
+        .map(|a| a.id.clone());
+    let grid = if rectifying {
+        let size_mm = match (args.square_mm, manifest.sim.as_ref()) {
+            (Some(mm), _) => mm,
+            (None, Some(sim)) => sim.sample_size_mm,
+            (None, None) => {
+                return Err(SessionError::Io(
+                    "rectified images and the BTF need the square of the reference plane to keep: give --square-mm (the sample's side in mm)".into(),
+                ));
+            }
+        };
+        if !(size_mm.is_finite() && size_mm > 0.0 && (1..=4096).contains(&args.size_px)) {
+            return Err(SessionError::Io(format!(
+                "--square-mm {size_mm} --size-px {}: the square needs a positive side and 1 to 4096 pixels",
+                args.size_px
+            )));
+        }
+        Some(RectifyGrid {
+            centre_mm: (args.centre_mm[0], args.centre_mm[1]),
+            size_mm,
+            pixels: args.size_px,
+        })
+    } else {
+        None
+    };
+    let rectification = match (grid, &found.geometry) {
+        (Some(grid), Some((cameras, id))) => Some(Rectification {
+            geometry: (cameras, id.as_str()),
+            grid,
+            turntable_axis: turntable.as_deref(),
+        }),
+        (Some(_), None) => {
+            return Err(SessionError::Io(
+                "rectified images and the BTF need a geometric calibration: --calibration geometry-…, or name one in the rig file's [calibration] table (make one with `stagehand calibrate geometry`)".into(),
+            ));
+        }
+        (None, _) => None,
+    };
+    let layout = match (&found.geometry, want(Product::Btf)) {
+        (Some((geometry, _)), true) => {
+            let lamps: Vec<LampPlacement> = rig
+                .lamps
+                .iter()
+                .filter(|l| l.kind == LampKind::Halogen)
+                .map(|l| LampPlacement {
+                    id: l.id.clone(),
+                    elevation_deg: l.elevation_deg,
+                    distance_mm: l.distance_mm,
+                })
+                .collect();
+            let axes = BtfAxes {
+                turntable: turntable.clone(),
+                light_arc: rig.axis_with_role(AxisRole::LightArc).map(|a| a.id.clone()),
+            };
+            let reader = open_run(&args.run_dir).map_err(processing_err)?;
+            let keys = bracket_keys(&reader, |m| cameras.is_none_or(|c| c.contains(&m.camera)))
+                .map_err(processing_err)?;
+            Some(btf_layout(&keys, geometry, &lamps, &axes).map_err(processing_err)?)
+        }
+        _ => None,
+    };
     let mut store =
         ProductStore::open(&args.run_dir).map_err(|e| SessionError::Io(e.to_string()))?;
     let bar = ProgressBar::with_draw_target(Some(0), ProgressDrawTarget::stderr_with_hz(5));
-    let style = ProgressStyle::with_template("{bar:30.cyan/blue} {pos}/{len} hdr products  {eta}")
+    let style = ProgressStyle::with_template("{bar:30.cyan/blue} {pos}/{len} captures  {eta}")
         .unwrap_or_else(|_| ProgressStyle::default_bar());
     bar.set_style(style);
     let cal = HdrCalibrations {
         response: (&responses, &response_id),
-        colour: colour.as_ref().map(|(set, id)| (set, id.as_str())),
+        colour: found.colour.as_ref().map(|(set, id)| (set, id.as_str())),
         weight: MergeWeight::HatTimesExposure,
     };
+    let outputs = Outputs {
+        hdr: want(Product::Hdr),
+        rectified: want(Product::Rectified),
+        btf: layout.as_ref(),
+        rectification,
+        cameras,
+    };
     let software = format!("stagehand {}", env!("CARGO_PKG_VERSION"));
-    let summary = hdr_products(&mut store, cal, &software, &mut |done, total| {
+    let summary = capture_products(&mut store, cal, outputs, &software, &mut |done, total| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
     })
     .map_err(processing_err)?;
     bar.finish_and_clear();
+    let report = Report {
+        summary,
+        btf_layout: layout.as_ref().map(|l| BtfReport {
+            views: l.views.len(),
+            lights: l.lights.len(),
+            cells: l.cells.len(),
+            left_out: l.left_out.clone(),
+        }),
+    };
     if args.json {
-        super::print_json(&summary)?;
+        super::print_json(&report)?;
     } else {
-        println!(
-            "hdr: {} written, {} already current; {} samples saturated in every exposure, {} black in every exposure",
-            summary.written, summary.skipped, summary.saturated_samples, summary.black_samples
-        );
-        println!(
-            "products in {}",
-            args.run_dir
-                .join(stagehand_dataset::layout::PRODUCTS_DIR)
-                .display()
-        );
+        print_report(&report, &args);
     }
     Ok(0)
+}
+
+/// The BTF's shape and what it left out.
+#[derive(Debug, serde::Serialize)]
+struct BtfReport {
+    views: usize,
+    lights: usize,
+    cells: usize,
+    left_out: Vec<(usize, String, String)>,
+}
+
+/// What `process --json` prints.
+#[derive(Debug, serde::Serialize)]
+struct Report {
+    #[serde(flatten)]
+    summary: ProductSummary,
+    btf_layout: Option<BtfReport>,
+}
+
+fn print_report(report: &Report, args: &ProcessArgs) {
+    let s = &report.summary;
+    println!(
+        "{} captures, {} merged; {} samples saturated in every exposure, {} black in every exposure",
+        s.captures, s.merged, s.saturated_samples, s.black_samples
+    );
+    for (name, c, asked) in [
+        ("hdr", s.hdr, args.products.contains(&Product::Hdr)),
+        (
+            "rectified",
+            s.rectified,
+            args.products.contains(&Product::Rectified),
+        ),
+        ("btf files", s.btf, args.products.contains(&Product::Btf)),
+    ] {
+        if asked {
+            println!(
+                "{name}: {} written, {} already current",
+                c.written, c.skipped
+            );
+        }
+    }
+    if let Some(b) = &report.btf_layout {
+        println!(
+            "btf: {} views × {} lights, {} cells filled",
+            b.views, b.lights, b.cells
+        );
+        for (step, camera, why) in b.left_out.iter().take(5) {
+            println!("  left out of the btf: step {step} camera {camera}: {why}");
+        }
+        if b.left_out.len() > 5 {
+            println!("  … and {} more left out", b.left_out.len() - 5);
+        }
+    }
+    println!(
+        "products in {}",
+        args.run_dir
+            .join(stagehand_dataset::layout::PRODUCTS_DIR)
+            .display()
+    );
 }

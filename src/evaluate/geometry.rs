@@ -44,14 +44,35 @@ pub struct GeometryFigures {
     pub failed: Vec<(String, String)>,
 }
 
+/// A camera as built, from `as_built.json` (OpenCV's convention, rig frame at table 0°).
 #[derive(Deserialize)]
-struct TrueCamera {
-    fx: f64,
-    fy: f64,
-    cx: f64,
-    cy: f64,
-    distortion: [f64; 5],
-    centre_mm: [f64; 3],
+pub(super) struct TrueCamera {
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    pub distortion: [f64; 5],
+    pub centre_mm: [f64; 3],
+    /// Rig → camera rotation, rows.
+    pub rotation: [[f64; 3]; 3],
+    /// Rig → camera translation, mm.
+    pub translation: [f64; 3],
+}
+
+impl TrueCamera {
+    /// The camera's intrinsics and distortion as processing models them.
+    pub fn model(&self) -> CameraModel {
+        let [k1, k2, p1, p2, k3] = self.distortion;
+        CameraModel {
+            intrinsics: Intrinsics {
+                fx: self.fx,
+                fy: self.fy,
+                cx: self.cx,
+                cy: self.cy,
+            },
+            distortion: Distortion { k1, k2, p1, p2, k3 },
+        }
+    }
 }
 
 /// Evaluates `stored` (a geometry calibration) against `truth` (`as_built.json`).
@@ -70,16 +91,7 @@ pub fn evaluate_geometry(
     for g in &result.cameras {
         let t: TrueCamera = serde_json::from_value(truth["cameras"][&g.camera]["geometry"].clone())
             .map_err(|e| bad(format!("camera {}: {e}", g.camera)))?;
-        let [k1, k2, p1, p2, k3] = t.distortion;
-        let true_model = CameraModel {
-            intrinsics: Intrinsics {
-                fx: t.fx,
-                fy: t.fy,
-                cx: t.cx,
-                cy: t.cy,
-            },
-            distortion: Distortion { k1, k2, p1, p2, k3 },
-        };
+        let true_model = t.model();
         let k = &g.model.intrinsics;
         let centre = Vector3::from(g.centre_mm) - Vector3::from(t.centre_mm);
         let (w, h) = (2.0 * t.cx + 1.0, 2.0 * t.cy + 1.0);

@@ -6,6 +6,7 @@
 mod colour;
 mod geometry;
 mod hdr;
+mod rectified;
 mod response;
 
 use std::path::Path;
@@ -16,6 +17,7 @@ use stagehand_processing::calibration_store::{self, CalibrationKind, calibration
 pub use colour::{ColourFigures, LampFigures, evaluate_colour};
 pub use geometry::{CameraFigures, GeometryFigures, evaluate_geometry};
 pub use hdr::{ErrorFigures, HdrFigures, evaluate_hdr};
+pub use rectified::{RectifiedFigures, evaluate_rectified};
 pub use response::{ChannelFigures, ResponseFigures, evaluate_response};
 
 /// Errors of `evaluate`.
@@ -44,6 +46,8 @@ pub struct Report {
     pub colour: Vec<ColourFigures>,
     /// The run's HDR products against its noise-free radiance (runs with ground truth).
     pub hdr: Option<HdrFigures>,
+    /// The run's rectified images and BTF views against the true camera geometry.
+    pub rectified: Option<RectifiedFigures>,
 }
 
 /// Evaluates every calibration of `kinds` stored beside `run_dir` that was computed from it.
@@ -67,6 +71,7 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
         geometry: Vec::new(),
         colour: Vec::new(),
         hdr: None,
+        rectified: None,
     };
     for stored in calibration_store::list(&root)?.into_iter().flatten() {
         if !stored.calibration.inputs.iter().any(|i| i.run_id == run_id) {
@@ -82,5 +87,6 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
         }
     }
     report.hdr = evaluate_hdr(run_dir, &root)?;
+    report.rectified = evaluate_rectified(run_dir, &root, &truth)?;
     Ok(report)
 }

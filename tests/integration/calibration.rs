@@ -1,7 +1,8 @@
 //! Calibration end to end on a simulated rig as built (`[sim.as_built]`): a response sweep
 //! captured with `sequences/calibration_response.rhai` and a checkerboard run with
 //! `sequences/calibration_checkerboard.rhai`, `stagehand calibrate response|geometry`, and
-//! `stagehand evaluate` against the simulator's truth in `as_built.json`, through the CLI.
+//! `stagehand evaluate` against the simulator's truth in `as_built.json`, through the CLI; the
+//! geometric calibration then rectifies captures ([`super::rectification`]).
 
 use std::path::Path;
 
@@ -70,11 +71,17 @@ fn the_strong_response_of_8_bit_cameras_is_recovered_within_1_percent() {
 /// leaves the principal point weakly determined, OpenCV on the same frames is no closer);
 /// the targets are tighter and not met yet.
 #[test]
-fn the_cameras_are_calibrated_and_placed_in_the_rig_frame_from_the_checkerboard() {
+fn the_cameras_are_calibrated_placed_in_the_rig_frame_and_their_captures_rectified() {
     let _turn = crate::grbl_peer::alongside();
     let out = tempfile::tempdir().unwrap();
     let rig = as_built_rig_with("gentle", 12, |text| text + "\n[sim.knobs]\nspp_side = 2\n");
-    let run = run_sequence("calibration_checkerboard.rhai", rig, &[], out.path(), 1);
+    let run = run_sequence(
+        "calibration_checkerboard.rhai",
+        rig.clone(),
+        &[],
+        out.path(),
+        1,
+    );
     run.result.as_ref().expect("the placements run");
     let dir = run.dir.to_str().expect("utf-8 path");
     // A camera left out makes the exit status 1; the calibration is stored either way.
@@ -104,4 +111,19 @@ fn the_cameras_are_calibrated_and_placed_in_the_rig_frame_from_the_checkerboard(
     assert!(figure("focal_rel_error") < 0.01, "{geometry:#}");
     assert!(figure("centre_error_mm") < 5.0, "{geometry:#}");
     assert!(figure("principal_point_error_px") < 60.0, "{geometry:#}");
+
+    let cameras: Vec<String> = geometry["cameras"]
+        .as_array()
+        .expect("cameras")
+        .iter()
+        .map(|c| c["camera"].as_str().expect("id").to_string())
+        .collect();
+    let id = stored["id"].as_str().expect("an id");
+    super::rectification::captures_are_rectified_and_assembled_into_a_btf(
+        out.path(),
+        &rig,
+        &run.dir,
+        id,
+        &cameras,
+    );
 }

@@ -23,6 +23,7 @@ mod ground_truth;
 mod kill_resume;
 mod process;
 mod real_grbl_quickstart;
+mod rectification;
 mod run_state;
 mod sequences;
 mod sim_tradeoff;

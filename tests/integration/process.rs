@@ -36,8 +36,8 @@ fn hdr_products_are_indexed_resumed_and_refused_for_cameras_not_calibrated() {
     let id = response["id"].as_str().expect("an id").to_string();
 
     let first = stagehand(&["process", dir, "--calibration", &id, "--json"]);
-    assert_eq!(first["written"], 8, "{first}");
-    assert_eq!(first["skipped"], 0);
+    assert_eq!(first["hdr"]["written"], 8, "{first}");
+    assert_eq!(first["hdr"]["skipped"], 0);
     let products = ProductStore::open(&sweep.dir).unwrap().products().unwrap();
     assert_eq!(products.len(), 8);
     for p in &products {
@@ -64,13 +64,19 @@ fn hdr_products_are_indexed_resumed_and_refused_for_cameras_not_calibrated() {
     // Rerun: nothing to do. A product lost: made again, alone.
     let again = stagehand(&["process", dir, "--calibration", &id, "--json"]);
     assert_eq!(
-        (again["written"].as_u64(), again["skipped"].as_u64()),
+        (
+            again["hdr"]["written"].as_u64(),
+            again["hdr"]["skipped"].as_u64()
+        ),
         (Some(0), Some(8))
     );
     std::fs::remove_file(sweep.dir.join(&products[3].path)).unwrap();
     let repaired = stagehand(&["process", dir, "--calibration", &id, "--json"]);
     assert_eq!(
-        (repaired["written"].as_u64(), repaired["skipped"].as_u64()),
+        (
+            repaired["hdr"]["written"].as_u64(),
+            repaired["hdr"]["skipped"].as_u64()
+        ),
         (Some(1), Some(7))
     );
 
