@@ -645,15 +645,14 @@ async fn lost_packets_are_missing_frames_never_corrupt_ones() {
             "{}: every trigger is a frame or an error",
             names[i]
         );
-        assert!(
-            counters[i].incomplete_frames <= tally.missing[i].len() as u64,
-            "{}: {:?}",
-            names[i],
-            counters[i]
-        );
     }
+    // Not one count per lost trigger: a frame whose leader was lost can come out of aravis as
+    // more than one partial buffer (seen once: 28 incomplete buffers for 26 lost triggers).
+    // What matters is above: every trigger is an intact frame or a typed error.
     let missing_packets: u64 = counters.iter().map(|c| c.missing_packets).sum();
     assert!(missing_packets > 0, "{counters:?}");
+    let incomplete: u64 = counters.iter().map(|c| c.incomplete_frames).sum();
+    assert!(tally.lost() == 0 || incomplete > 0, "{counters:?}");
     eprintln!(
         "1 % loss: {} of {} frames lost (typed), {} delivered intact; packets missing {missing_packets}, resent {}",
         tally.lost(),
