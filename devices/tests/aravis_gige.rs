@@ -636,14 +636,13 @@ async fn lost_packets_are_missing_frames_never_corrupt_ones() {
     }
     cams.disarm().await;
     let counters = cams.counters();
-    for i in 0..CAMERAS {
+    for (i, name) in names.iter().enumerate() {
         let frames: u32 = tally.frames[i].values().sum();
-        assert!(tally.frames[i].values().all(|&k| k == 1), "{}", names[i]);
+        assert!(tally.frames[i].values().all(|&k| k == 1), "{name}");
         assert_eq!(
             u64::from(frames) + tally.missing[i].len() as u64,
             n,
-            "{}: every trigger is a frame or an error",
-            names[i]
+            "{name}: every trigger is a frame or an error",
         );
     }
     // Not one count per lost trigger: a frame whose leader was lost can come out of aravis as
