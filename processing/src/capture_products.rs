@@ -11,7 +11,7 @@
 //! merged a few per core at a time and written in order, so memory stays bounded by the batch
 //! whatever the run's size; nothing at full resolution is kept unless `hdr` is asked for.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::Path;
 
 use rayon::prelude::*;
@@ -26,7 +26,7 @@ use crate::calibrate_geometry::CameraGeometry;
 use crate::colour_calibration::ColourSet;
 use crate::error::ProcessingError;
 use crate::hdr_frame::{MergeWeight, PixelState, RgbExposure, merge_rgb_frames};
-use crate::rectify::{Image, Rectified, RectifyGrid, rectify};
+use crate::rectify::{Image, Rectified, RectifyGrid, RectifyMap};
 use crate::response_calibration::{CameraResponse, ResponseSet};
 use crate::rig_frame::sample_to_camera;
 use crate::run_frames::{BracketKey, bracket_keys, dataset_err, decode_frame_in, open_run};
@@ -368,6 +368,7 @@ pub fn capture_products(
     }
     let total = jobs.len();
     let mut done = 0;
+    let mut maps = MapCache::default();
     let batch = 2 * rayon::current_num_threads().max(1);
     let mut jobs = jobs.into_iter().peekable();
     while jobs.peek().is_some() {
@@ -409,15 +410,19 @@ pub fn capture_products(
             }
         }
         summary.merged += todo.len();
+        if let Some(r) = rect {
+            maps.prepare(&todo, &r)?;
+        }
         let made: Vec<Made> = todo
             .into_par_iter()
             .map(|job| {
+                let map = maps.get(&job);
                 make(
                     &run_dir,
                     &job,
                     &calibrations,
                     cal.weight,
-                    rect,
+                    map,
                     arrays.as_ref(),
                 )
             })
@@ -433,6 +438,64 @@ pub fn capture_products(
         }
     }
     Ok(summary)
+}
+
+/// A view: a camera at a turntable angle (thousandths of a degree).
+type ViewKey = (String, i64);
+
+/// Most rectification maps kept at once: a turntable angle's views of an 8-camera rig twice.
+const MAP_CACHE: usize = 16;
+
+/// The rectification maps of the views being processed. The captures of a run come view by
+/// view (every light at one table angle), so a handful of maps serves them all; the cache is
+/// emptied when it would grow past [`MAP_CACHE`], which bounds its memory whatever the run.
+#[derive(Default)]
+struct MapCache {
+    maps: HashMap<ViewKey, (RectifyMap, RectifyGrid, f64)>,
+}
+
+impl MapCache {
+    fn key(job: &Job<'_>) -> Option<ViewKey> {
+        let (_, table) = job.placed?;
+        let due = job.rectified.is_some() || job.btf.is_some();
+        due.then(|| {
+            (
+                job.key.camera.clone(),
+                (table.rem_euclid(360.0) * 1000.0).round() as i64,
+            )
+        })
+    }
+
+    /// Makes (on every core) the maps `jobs` need that the cache lacks.
+    fn prepare(&mut self, jobs: &[Job<'_>], r: &Rectification<'_>) -> Result<(), ProcessingError> {
+        let mut missing: BTreeMap<ViewKey, &Job<'_>> = BTreeMap::new();
+        for job in jobs {
+            if let Some(key) = Self::key(job).filter(|k| !self.maps.contains_key(k)) {
+                missing.entry(key).or_insert(job);
+            }
+        }
+        if self.maps.len() + missing.len() > MAP_CACHE {
+            self.maps.clear();
+        }
+        let made: Vec<(ViewKey, (RectifyMap, RectifyGrid, f64))> = missing
+            .into_par_iter()
+            .filter_map(|(key, job)| job.placed.map(|placed| (key, job, placed)))
+            .map(|(key, job, (geometry, table))| {
+                let pose = sample_to_camera(&geometry.rig_to_camera, table);
+                let (w, h) = (job.key.meta.width as usize, job.key.meta.height as usize);
+                let map = RectifyMap::new(&geometry.model, &pose, &r.grid, w, h)?;
+                Ok((key, (map, r.grid, table)))
+            })
+            .collect::<Result<_, ProcessingError>>()?;
+        self.maps.extend(made);
+        Ok(())
+    }
+
+    /// The map of `job`'s view, its grid and table angle, if it rectifies.
+    fn get(&self, job: &Job<'_>) -> Option<(&RectifyMap, RectifyGrid, f64)> {
+        let (map, grid, table) = self.maps.get(&Self::key(job)?)?;
+        Some((map, *grid, *table))
+    }
 }
 
 /// The units a product's values are in.
@@ -457,7 +520,7 @@ fn make(
     job: &Job<'_>,
     calibrations: &[String],
     weight: MergeWeight,
-    rect: Option<Rectification<'_>>,
+    map: Option<(&RectifyMap, RectifyGrid, f64)>,
     arrays: Option<&BtfArrays>,
 ) -> Result<Made, ProcessingError> {
     let key = job.key;
@@ -509,7 +572,7 @@ fn make(
         .map_err(dataset_err(run_dir))?;
         files.push((new.clone(), bytes));
     }
-    if let (Some(r), Some((geometry, table))) = (rect, job.placed)
+    if let Some((map, grid, table)) = map
         && (job.rectified.is_some() || job.btf.is_some())
     {
         let image = Image {
@@ -518,9 +581,8 @@ fn make(
             channels: 3,
             data: &merged.rgb,
         };
-        let pose = sample_to_camera(&geometry.rig_to_camera, table);
-        let out: Rectified = rectify(&image, &geometry.model, &pose, &r.grid)?;
-        let n = r.grid.pixels;
+        let out: Rectified = map.apply(&image)?;
+        let n = grid.pixels;
         if let Some(new) = &job.rectified {
             let mut rgba = Vec::with_capacity(n * n * 4);
             for (px, seen) in out.data.chunks_exact(3).zip(&out.seen) {
@@ -528,7 +590,7 @@ fn make(
                 rgba.push(if *seen { 1.0 } else { 0.0 });
             }
             let mut meta = metadata.clone();
-            meta["grid"] = json!(r.grid);
+            meta["grid"] = json!(grid);
             meta["turntable_deg"] = json!(table);
             meta["calibrations"] = json!(new.calibrations);
             let channels = ["R", "G", "B", "A"].map(String::from);

@@ -57,21 +57,31 @@ pub struct HdrFrame {
 
 /// A channel's inverse response tabulated per DN: g(z) and the weight of z.
 struct Table {
-    g: Vec<f32>,
-    w: Vec<f32>,
-    high: Vec<bool>,
+    /// Per DN: g(z), the weight of z, and whether z is above the usable range, side by side
+    /// so one lookup brings all three.
+    entries: Vec<Entry>,
+}
+
+#[derive(Clone, Copy)]
+struct Entry {
+    g: f32,
+    w: f32,
+    high: bool,
 }
 
 impl Table {
     fn new(r: &InverseResponse, max_dn: usize) -> Table {
-        let (mut g, mut w, mut high) = (Vec::new(), Vec::new(), Vec::new());
-        for z in 0..=max_dn {
-            let z = z as f64;
-            g.push(r.g(z) as f32);
-            w.push(r.range.weight(z) as f32);
-            high.push(r.range.is_high(z));
-        }
-        Table { g, w, high }
+        let entries = (0..=max_dn)
+            .map(|z| {
+                let z = z as f64;
+                Entry {
+                    g: r.g(z) as f32,
+                    w: r.range.weight(z) as f32,
+                    high: r.range.is_high(z),
+                }
+            })
+            .collect();
+        Table { entries }
     }
 }
 
@@ -147,25 +157,32 @@ pub fn merge_rgb_frames(
         .collect();
     let mut rgb = vec![0.0f32; n];
     let mut state = vec![PixelState::Measured; n];
-    for i in 0..n {
-        let c = i % 3;
-        let t = &tables[c];
-        let (mut num, mut den, mut all_high) = (0.0f32, 0.0f32, true);
-        for (e, &(ln_t, we)) in bracket.iter().zip(&exposures) {
-            let z = e.dn[i] as usize;
-            let w = t.w[z] * we;
-            num += w * (t.g[z] - ln_t);
-            den += w;
-            all_high &= t.high[z];
-        }
-        if den > 0.0 {
-            rgb[i] = ((num / den).exp() as f64 / scale[c]) as f32;
-        } else if all_high {
-            rgb[i] = bounds[c].0;
-            state[i] = PixelState::AtLeast;
-        } else {
-            rgb[i] = bounds[c].1;
-            state[i] = PixelState::AtMost;
+    let inverse_scale: [f32; 3] = scale.map(|s| (1.0 / s) as f32);
+    for (p, (out, states)) in rgb
+        .chunks_exact_mut(3)
+        .zip(state.chunks_exact_mut(3))
+        .enumerate()
+    {
+        for c in 0..3 {
+            let i = 3 * p + c;
+            let t = &tables[c].entries;
+            let (mut num, mut den, mut all_high) = (0.0f32, 0.0f32, true);
+            for (e, &(ln_t, we)) in bracket.iter().zip(&exposures) {
+                let entry = t[e.dn[i] as usize];
+                let w = entry.w * we;
+                num += w * (entry.g - ln_t);
+                den += w;
+                all_high &= entry.high;
+            }
+            if den > 0.0 {
+                out[c] = (num / den).exp() * inverse_scale[c];
+            } else if all_high {
+                out[c] = bounds[c].0;
+                states[c] = PixelState::AtLeast;
+            } else {
+                out[c] = bounds[c].1;
+                states[c] = PixelState::AtMost;
+            }
         }
     }
     Ok(HdrFrame {

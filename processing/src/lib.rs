@@ -19,6 +19,9 @@
 //! | [`calibrate_geometry`] | every camera calibrated and placed in the rig frame |
 //! | [`rig_frame`] | the turntable axis and the rig frame from flat board placements |
 //! | [`rectify`] | resampling a view onto the reference plane with area averaging |
+//! | [`laser_line`] | a laser line in a frame: noise-derived threshold, sub-pixel peak |
+//! | [`space_time`] | a laser sweep's per-pixel peak times (Curless–Levoy), streamed |
+//! | [`ray_plane`] | laser triangulation: a pixel's ray against the sheet that lit it |
 //! | [`white_balance`] | joint camera+lamp channel scales from the colour checker |
 //! | [`chart_layout`] | the colour checker's physical layout on the turntable |
 //! | [`chart_locate`] | finding the colour checker in an image from a camera's geometry |
@@ -48,7 +51,9 @@ pub mod geometry_calibration;
 pub mod gray_image;
 pub mod hdr_frame;
 pub mod homography;
+pub mod laser_line;
 pub mod nominal_geometry;
+pub mod ray_plane;
 pub mod rectify;
 pub mod response_calibration;
 pub mod response_curve;
@@ -56,6 +61,7 @@ pub mod response_samples;
 pub mod response_solve;
 pub mod rig_frame;
 pub mod run_frames;
+pub mod space_time;
 pub mod weight;
 pub mod white_balance;
 pub mod zarr_array;
@@ -67,7 +73,7 @@ pub use checkerboard::{CheckerboardSpec, detect_checkerboard};
 pub use error::ProcessingError;
 pub use gray_image::GrayImage;
 pub use hdr_frame::{HdrFrame, MergeWeight, PixelState, RgbExposure, merge_rgb_frames};
-pub use rectify::{Image, Rectified, RectifyGrid, rectify};
+pub use rectify::{Image, Rectified, RectifyGrid, RectifyMap, rectify};
 pub use response_curve::InverseResponse;
 pub use response_samples::{Bracket, BracketImage, Sample, select_samples};
 pub use response_solve::{ResponseFit, ResponseParams, solve_response};

@@ -60,7 +60,198 @@ pub struct Rectified {
 /// Largest supersampling per axis.
 const MAX_SAMPLES: usize = 8;
 
-/// Rectifies `image`, taken by `camera` at `pose` (plane → camera), onto `grid`.
+/// One bilinear sample of the input: the index of its top-left pixel and its fractions in
+/// 1/65536 of a pixel (8 bytes a sample: a view's map stays a few MB).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Tap {
+    pixel: u32,
+    fx: u16,
+    fy: u16,
+}
+
+/// The unit of a [`Tap`]'s fractions.
+const FRACTION: f64 = 65536.0;
+
+/// Where every output pixel of a rectification samples the input image. It depends only on
+/// the camera, its pose and the grid, so it is computed once per view and applied to every
+/// capture of that view (a BTF view has one capture per light).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RectifyMap {
+    pixels: usize,
+    width: usize,
+    height: usize,
+    /// Output pixel `p`'s samples are `taps[starts[p]..starts[p + 1]]`; none if unseen.
+    starts: Vec<u32>,
+    taps: Vec<Tap>,
+}
+
+impl RectifyMap {
+    /// The map of a `width × height` image taken by `camera` at `pose` (plane → camera) onto
+    /// `grid`: each output pixel averages k×k points spread over its footprint, k following
+    /// the footprint's extent in input pixels (1 to 8); a pixel any of whose points falls
+    /// outside the image is unseen.
+    pub fn new(
+        camera: &CameraModel,
+        pose: &Pose,
+        grid: &RectifyGrid,
+        width: usize,
+        height: usize,
+    ) -> Result<RectifyMap, ProcessingError> {
+        if !(grid.size_mm.is_finite() && grid.size_mm > 0.0) || grid.pixels == 0 {
+            return Err(ProcessingError::BadParameter {
+                name: "rectification size",
+                value: grid.size_mm,
+                why: "the square must have a positive size and at least one pixel",
+            });
+        }
+        if width == 0 || height == 0 || width.saturating_mul(height) > u32::MAX as usize {
+            return Err(ProcessingError::BadParameter {
+                name: "image size",
+                value: (width * height) as f64,
+                why: "the image must have pixels, fewer than 2³²",
+            });
+        }
+        let n = grid.pixels;
+        let project = |i: f64, j: f64| {
+            let (x, y) = grid.plane_point(i, j);
+            camera
+                .project(pose, &Vector3::new(x, y, 0.0))
+                .map(|p| (p.x, p.y))
+        };
+        let mut starts = Vec::with_capacity(n * n + 1);
+        let mut taps = Vec::new();
+        let mut pixel_taps = Vec::with_capacity(MAX_SAMPLES * MAX_SAMPLES);
+        starts.push(0u32);
+        for j in 0..n {
+            for i in 0..n {
+                let (fi, fj) = (i as f64, j as f64);
+                pixel_taps.clear();
+                // The footprint's extent in input pixels decides the samples per axis.
+                let corners = [
+                    project(fi, fj),
+                    project(fi + 1.0, fj),
+                    project(fi, fj + 1.0),
+                    project(fi + 1.0, fj + 1.0),
+                ];
+                if let [Some(c0), Some(c1), Some(c2), Some(c3)] = corners {
+                    let extent = (c0.0 - c3.0)
+                        .abs()
+                        .max((c1.0 - c2.0).abs())
+                        .max((c0.1 - c3.1).abs())
+                        .max((c1.1 - c2.1).abs());
+                    let k = (extent.ceil() as usize).clamp(1, MAX_SAMPLES);
+                    'samples: for sj in 0..k {
+                        for si in 0..k {
+                            let tap = project(
+                                fi + (si as f64 + 0.5) / k as f64,
+                                fj + (sj as f64 + 0.5) / k as f64,
+                            )
+                            .and_then(|(u, v)| tap(u, v, width, height));
+                            match tap {
+                                Some(t) => pixel_taps.push(t),
+                                None => {
+                                    pixel_taps.clear();
+                                    break 'samples;
+                                }
+                            }
+                        }
+                    }
+                }
+                taps.extend_from_slice(&pixel_taps);
+                starts.push(u32::try_from(taps.len()).map_err(|_| {
+                    ProcessingError::BadParameter {
+                        name: "rectification size",
+                        value: n as f64,
+                        why: "the grid needs more than 2³² samples; use fewer pixels",
+                    }
+                })?);
+            }
+        }
+        Ok(RectifyMap {
+            pixels: n,
+            width,
+            height,
+            starts,
+            taps,
+        })
+    }
+
+    /// Which output pixels the camera saw (every sample of the footprint inside the image).
+    pub fn seen(&self) -> Vec<bool> {
+        self.starts.windows(2).map(|w| w[1] > w[0]).collect()
+    }
+
+    /// Rectifies `image` (of the size the map was made for).
+    pub fn apply(&self, image: &Image<'_>) -> Result<Rectified, ProcessingError> {
+        let ch = image.channels;
+        if image.data.len() != image.width * image.height * ch
+            || ch == 0
+            || (image.width, image.height) != (self.width, self.height)
+        {
+            return Err(ProcessingError::SizeMismatch {
+                index: 0,
+                expected: self.width * self.height * ch.max(1),
+                got: image.data.len(),
+            });
+        }
+        let n = self.pixels;
+        let w = self.width;
+        let mut data = vec![0.0f32; n * n * ch];
+        let mut acc = vec![0.0f64; ch];
+        for (p, out) in data.chunks_exact_mut(ch).enumerate() {
+            let taps = &self.taps[self.starts[p] as usize..self.starts[p + 1] as usize];
+            if taps.is_empty() {
+                continue;
+            }
+            acc.iter_mut().for_each(|a| *a = 0.0);
+            for t in taps {
+                let base = t.pixel as usize;
+                let (x0, y0) = (base % w, base / w);
+                let dx = usize::from(x0 + 1 < w);
+                let dy = if y0 + 1 < self.height { w } else { 0 };
+                let (fx, fy) = (f64::from(t.fx) / FRACTION, f64::from(t.fy) / FRACTION);
+                let weights = [
+                    (base, (1.0 - fx) * (1.0 - fy)),
+                    (base + dx, fx * (1.0 - fy)),
+                    (base + dy, (1.0 - fx) * fy),
+                    (base + dx + dy, fx * fy),
+                ];
+                for (c, a) in acc.iter_mut().enumerate() {
+                    *a += weights
+                        .iter()
+                        .map(|&(q, wt)| wt * f64::from(image.data[q * ch + c]))
+                        .sum::<f64>();
+                }
+            }
+            for (o, a) in out.iter_mut().zip(&acc) {
+                *o = (*a / taps.len() as f64) as f32;
+            }
+        }
+        Ok(Rectified {
+            pixels: n,
+            data,
+            seen: self.seen(),
+        })
+    }
+}
+
+/// The bilinear tap at `(u, v)` (pixel centres at integers) of a `width × height` image;
+/// `None` outside it.
+fn tap(u: f64, v: f64, width: usize, height: usize) -> Option<Tap> {
+    if !(u >= 0.0 && v >= 0.0 && u <= (width - 1) as f64 && v <= (height - 1) as f64) {
+        return None;
+    }
+    let (x0, y0) = (u.floor() as usize, v.floor() as usize);
+    let fraction = |f: f64| (f * FRACTION).round().min(FRACTION - 1.0) as u16;
+    Some(Tap {
+        pixel: (y0 * width + x0) as u32,
+        fx: fraction(u - x0 as f64),
+        fy: fraction(v - y0 as f64),
+    })
+}
+
+/// Rectifies `image`, taken by `camera` at `pose` (plane → camera), onto `grid` (a
+/// [`RectifyMap`] made and applied once).
 pub fn rectify(
     image: &Image<'_>,
     camera: &CameraModel,
@@ -74,96 +265,7 @@ pub fn rectify(
             got: image.data.len(),
         });
     }
-    if !(grid.size_mm.is_finite() && grid.size_mm > 0.0) || grid.pixels == 0 {
-        return Err(ProcessingError::BadParameter {
-            name: "rectification size",
-            value: grid.size_mm,
-            why: "the square must have a positive size and at least one pixel",
-        });
-    }
-    let n = grid.pixels;
-    let ch = image.channels;
-    let project = |i: f64, j: f64| {
-        let (x, y) = grid.plane_point(i, j);
-        camera
-            .project(pose, &Vector3::new(x, y, 0.0))
-            .map(|p| (p.x, p.y))
-    };
-    let mut data = vec![0.0f32; n * n * ch];
-    let mut seen = vec![false; n * n];
-    let mut acc = vec![0.0f64; ch];
-    for j in 0..n {
-        for i in 0..n {
-            let (fi, fj) = (i as f64, j as f64);
-            // The footprint's extent in input pixels decides the samples per axis.
-            let corners = [
-                project(fi, fj),
-                project(fi + 1.0, fj),
-                project(fi, fj + 1.0),
-                project(fi + 1.0, fj + 1.0),
-            ];
-            let Some(c) = corners.iter().copied().collect::<Option<Vec<_>>>() else {
-                continue;
-            };
-            let extent = (c[0].0 - c[3].0)
-                .abs()
-                .max((c[1].0 - c[2].0).abs())
-                .max((c[0].1 - c[3].1).abs())
-                .max((c[1].1 - c[2].1).abs());
-            let k = (extent.ceil() as usize).clamp(1, MAX_SAMPLES);
-            acc.iter_mut().for_each(|a| *a = 0.0);
-            let mut inside = true;
-            'samples: for sj in 0..k {
-                for si in 0..k {
-                    let (u, v) = match project(
-                        fi + (si as f64 + 0.5) / k as f64,
-                        fj + (sj as f64 + 0.5) / k as f64,
-                    ) {
-                        Some(p) => p,
-                        None => {
-                            inside = false;
-                            break 'samples;
-                        }
-                    };
-                    if !bilinear(image, u, v, &mut acc) {
-                        inside = false;
-                        break 'samples;
-                    }
-                }
-            }
-            if inside {
-                let out = &mut data[(j * n + i) * ch..(j * n + i + 1) * ch];
-                for (o, a) in out.iter_mut().zip(&acc) {
-                    *o = (*a / (k * k) as f64) as f32;
-                }
-                seen[j * n + i] = true;
-            }
-        }
-    }
-    Ok(Rectified {
-        pixels: n,
-        data,
-        seen,
-    })
-}
-
-/// Adds the bilinear sample of `image` at `(u, v)` (pixel centres at integers) to `acc`;
-/// false if the point is outside the image.
-fn bilinear(image: &Image<'_>, u: f64, v: f64, acc: &mut [f64]) -> bool {
-    let (w, h, ch) = (image.width, image.height, image.channels);
-    if !(u >= 0.0 && v >= 0.0 && u <= (w - 1) as f64 && v <= (h - 1) as f64) {
-        return false;
-    }
-    let (x0, y0) = (u.floor() as usize, v.floor() as usize);
-    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-    let (fx, fy) = (u - x0 as f64, v - y0 as f64);
-    for (c, a) in acc.iter_mut().enumerate() {
-        let p = |x: usize, y: usize| f64::from(image.data[(y * w + x) * ch + c]);
-        let top = p(x0, y0) * (1.0 - fx) + p(x1, y0) * fx;
-        let bottom = p(x0, y1) * (1.0 - fx) + p(x1, y1) * fx;
-        *a += top * (1.0 - fy) + bottom * fy;
-    }
-    true
+    RectifyMap::new(camera, pose, grid, image.width, image.height)?.apply(image)
 }
 
 #[cfg(test)]
@@ -267,5 +369,42 @@ mod tests {
             ..grid
         };
         assert!(rectify(&image, &cam, &pose, &bad).is_err());
+    }
+
+    #[test]
+    fn one_map_serves_every_capture_of_a_view_and_refuses_another_size() {
+        let cam = camera();
+        let r = Rotation3::from_euler_angles(30f64.to_radians(), 0.0, 0.0);
+        let pose = Pose::from_parts(&r, Vector3::new(0.0, 0.0, 400.0));
+        let grid = RectifyGrid {
+            centre_mm: (0.0, 0.0),
+            size_mm: 40.0,
+            pixels: 32,
+        };
+        let map = RectifyMap::new(&cam, &pose, &grid, 400, 300).unwrap();
+        let texture = linear_texture_image(&cam, &pose, 400, 300);
+        for scale in [1.0f32, 3.0] {
+            let img: Vec<f32> = texture.iter().map(|v| v * scale).collect();
+            let image = Image {
+                width: 400,
+                height: 300,
+                channels: 1,
+                data: &img,
+            };
+            let out = map.apply(&image).unwrap();
+            assert_eq!(out, rectify(&image, &cam, &pose, &grid).unwrap());
+            let (x, y) = grid.plane_point(16.5, 16.5);
+            let v = out.data[16 * 32 + 16];
+            assert!((v - scale * (x + 2.0 * y) as f32).abs() < 0.05, "{v}");
+        }
+        let small = vec![0.0f32; 200 * 150];
+        let image = Image {
+            width: 200,
+            height: 150,
+            channels: 1,
+            data: &small,
+        };
+        assert!(map.apply(&image).is_err());
+        assert!(RectifyMap::new(&cam, &pose, &grid, 0, 300).is_err());
     }
 }
