@@ -21,6 +21,7 @@
 //! | [`rectify`] | resampling a view onto the reference plane with area averaging |
 //! | [`laser_line`] | a laser line in a frame: noise-derived threshold, sub-pixel peak |
 //! | [`space_time`] | a laser sweep's per-pixel peak times (Curless–Levoy), streamed |
+//! | [`laser_sheet`] | a sweep frame's laser sheet as the rig file places the laser |
 //! | [`ray_plane`] | laser triangulation: a pixel's ray against the sheet that lit it |
 //! | [`white_balance`] | joint camera+lamp channel scales from the colour checker |
 //! | [`chart_layout`] | the colour checker's physical layout on the turntable |
@@ -28,6 +29,7 @@
 //! | [`colour_calibration`] | every camera's scales under every lamp from a colour-checker run |
 //! | [`nominal_geometry`] | a camera's geometry as the rig file describes it |
 //! | [`capture_products`] | `process`: captures merged once, written as HDR, rectified and BTF products |
+//! | [`depth_products`] | `process --products depth`: each laser sweep triangulated per camera |
 //! | [`run_frames`] | a run's raw brackets, listed and decoded one at a time |
 //! | [`calibration_store`] | calibrations as content-addressed, versioned artefacts |
 //! | [`zarr_array`] | Zarr v3 arrays described and encoded (uncompressed chunks) for the BTF |
@@ -46,12 +48,14 @@ pub mod chart_locate;
 pub mod checkerboard;
 pub mod colour_calibration;
 pub mod corner_subpix;
+pub mod depth_products;
 pub mod error;
 pub mod geometry_calibration;
 pub mod gray_image;
 pub mod hdr_frame;
 pub mod homography;
 pub mod laser_line;
+pub mod laser_sheet;
 pub mod nominal_geometry;
 pub mod ray_plane;
 pub mod rectify;

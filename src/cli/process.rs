@@ -17,10 +17,12 @@ use stagehand_processing::capture_products::{
     HdrCalibrations, Outputs, ProductSummary, Rectification, capture_products,
 };
 use stagehand_processing::colour_calibration::ColourSet;
+use stagehand_processing::depth_products::{DepthSetup, DepthSummary, depth_products};
 use stagehand_processing::hdr_frame::MergeWeight;
 use stagehand_processing::rectify::RectifyGrid;
 use stagehand_processing::response_calibration::ResponseSet;
 use stagehand_processing::run_frames::{bracket_keys, open_run};
+use stagehand_processing::space_time::SpaceTimeOptions;
 
 use super::calibrate::{processing_err, root_of, store_err};
 use crate::session::SessionError;
@@ -37,6 +39,10 @@ pub enum Product {
     /// The BTF: one Zarr v3 group `products/btf/btf.zarr` with `radiance [view, light, y, x,
     /// rgb]` and `seen [view, y, x]`, views and lights in sample-frame angles.
     Btf,
+    /// A depth image per laser sweep and camera (OpenEXR `D`: distance along the pixel's ray,
+    /// mm, −1 unknown; `T`: peak time in frames), by space-time analysis against the rig
+    /// file's laser sheets, through the geometric calibration. Needs no response calibration.
+    Depth,
 }
 
 /// Arguments of `stagehand process`.
@@ -137,12 +143,13 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
         args.calibrations.clone()
     };
     let found = load_calibrations(&root, &ids)?;
-    let (responses, response_id) = found.response.ok_or_else(|| {
-        SessionError::Io(
-            "process needs a response calibration: --calibration response-…, or name one in the rig file's [calibration] table before the capture (make one with `stagehand calibrate response`)".into(),
-        )
-    })?;
     let want = |p: Product| args.products.contains(&p);
+    let merging = want(Product::Hdr) || want(Product::Rectified) || want(Product::Btf);
+    if merging && found.response.is_none() {
+        return Err(SessionError::Io(
+            "process needs a response calibration for hdr, rectified and btf: --calibration response-…, or name one in the rig file's [calibration] table before the capture (make one with `stagehand calibrate response`)".into(),
+        ));
+    }
     let rectifying = want(Product::Rectified) || want(Product::Btf);
     let rig = parse_rig(
         &manifest.rig_toml,
@@ -228,29 +235,62 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
     };
     let mut store =
         ProductStore::open(&args.run_dir).map_err(|e| SessionError::Io(e.to_string()))?;
-    let bar = ProgressBar::with_draw_target(Some(0), ProgressDrawTarget::stderr_with_hz(5));
-    let style = ProgressStyle::with_template("{bar:30.cyan/blue} {pos}/{len} captures  {eta}")
-        .unwrap_or_else(|_| ProgressStyle::default_bar());
-    bar.set_style(style);
-    let cal = HdrCalibrations {
-        response: (&responses, &response_id),
-        colour: found.colour.as_ref().map(|(set, id)| (set, id.as_str())),
-        weight: MergeWeight::HatTimesExposure,
-    };
-    let outputs = Outputs {
-        hdr: want(Product::Hdr),
-        rectified: want(Product::Rectified),
-        btf: layout.as_ref(),
-        rectification,
-        cameras,
-    };
     let software = format!("stagehand {}", env!("CARGO_PKG_VERSION"));
-    let summary = capture_products(&mut store, cal, outputs, &software, &mut |done, total| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
-    })
-    .map_err(processing_err)?;
-    bar.finish_and_clear();
+    let mut summary = ProductSummary::default();
+    if let Some((responses, response_id)) = found.response.as_ref().filter(|_| merging) {
+        let bar = progress_bar("captures");
+        let cal = HdrCalibrations {
+            response: (responses, response_id),
+            colour: found.colour.as_ref().map(|(set, id)| (set, id.as_str())),
+            weight: MergeWeight::HatTimesExposure,
+        };
+        let outputs = Outputs {
+            hdr: want(Product::Hdr),
+            rectified: want(Product::Rectified),
+            btf: layout.as_ref(),
+            rectification,
+            cameras,
+        };
+        summary = capture_products(&mut store, cal, outputs, &software, &mut |done, total| {
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        })
+        .map_err(processing_err)?;
+        bar.finish_and_clear();
+    }
+    let depth = if want(Product::Depth) {
+        let (geometry, geometry_id) = found.geometry.as_ref().ok_or_else(|| {
+            SessionError::Io(
+                "depth needs a geometric calibration: --calibration geometry-…, or name one in the rig file's [calibration] table (make one with `stagehand calibrate geometry`)".into(),
+            )
+        })?;
+        let laser = rig.laser.as_ref().ok_or_else(|| {
+            SessionError::Io(format!(
+                "depth needs a laser, and the run's rig `{}` has none",
+                rig.rig.name
+            ))
+        })?;
+        let setup = DepthSetup {
+            geometry: (geometry, geometry_id),
+            laser_distance_mm: laser.distance_mm,
+            turntable_axis: turntable.as_deref(),
+            light_arc_axis: rig
+                .axis_with_role(AxisRole::LightArc)
+                .map(|a| a.id.as_str()),
+            options: SpaceTimeOptions::default(),
+            cameras,
+        };
+        let bar = progress_bar("sweeps");
+        let made = depth_products(&mut store, setup, &software, &mut |done, total| {
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        })
+        .map_err(processing_err)?;
+        bar.finish_and_clear();
+        Some(made)
+    } else {
+        None
+    };
     let report = Report {
         summary,
         btf_layout: layout.as_ref().map(|l| BtfReport {
@@ -259,6 +299,7 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
             cells: l.cells.len(),
             left_out: l.left_out.clone(),
         }),
+        depth,
     };
     if args.json {
         super::print_json(&report)?;
@@ -266,6 +307,17 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
         print_report(&report, &args);
     }
     Ok(0)
+}
+
+/// A progress bar on stderr counting `what`.
+fn progress_bar(what: &str) -> ProgressBar {
+    let bar = ProgressBar::with_draw_target(Some(0), ProgressDrawTarget::stderr_with_hz(5));
+    let style = ProgressStyle::with_template(&format!(
+        "{{bar:30.cyan/blue}} {{pos}}/{{len}} {what}  {{eta}}"
+    ))
+    .unwrap_or_else(|_| ProgressStyle::default_bar());
+    bar.set_style(style);
+    bar
 }
 
 /// The BTF's shape and what it left out.
@@ -283,14 +335,17 @@ struct Report {
     #[serde(flatten)]
     summary: ProductSummary,
     btf_layout: Option<BtfReport>,
+    depth: Option<DepthSummary>,
 }
 
 fn print_report(report: &Report, args: &ProcessArgs) {
     let s = &report.summary;
-    println!(
-        "{} captures, {} merged; {} samples saturated in every exposure, {} black in every exposure",
-        s.captures, s.merged, s.saturated_samples, s.black_samples
-    );
+    if s.captures > 0 {
+        println!(
+            "{} captures, {} merged; {} samples saturated in every exposure, {} black in every exposure",
+            s.captures, s.merged, s.saturated_samples, s.black_samples
+        );
+    }
     for (name, c, asked) in [
         ("hdr", s.hdr, args.products.contains(&Product::Hdr)),
         (
@@ -318,6 +373,15 @@ fn print_report(report: &Report, args: &ProcessArgs) {
         if b.left_out.len() > 5 {
             println!("  … and {} more left out", b.left_out.len() - 5);
         }
+    }
+    if let Some(d) = &report.depth {
+        println!(
+            "depth: {} sweeps, {} written, {} already current; {:.1} % of the written pixels have a depth",
+            d.sweeps,
+            d.written,
+            d.skipped,
+            100.0 * d.known_fraction
+        );
     }
     println!(
         "products in {}",

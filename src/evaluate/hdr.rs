@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use stagehand_dataset::exr_hdr::decode_exr;
 use stagehand_dataset::exr_planes::decode_exr_planes;
 use stagehand_dataset::png16::decode_png16;
-use stagehand_dataset::{FrameKind, FrameQuery, RunReader};
+use stagehand_dataset::{FrameKind, FrameQuery};
 use stagehand_processing::calibration_store::{self, CalibrationKind};
 use stagehand_processing::response_calibration::ResponseSet;
 
@@ -51,16 +51,9 @@ pub fn evaluate_hdr(
         path: run_dir.display().to_string(),
         message,
     };
-    let reader = RunReader::open(run_dir).map_err(|e| err(e.to_string()))?;
-    let products: Vec<_> = reader
-        .products()
-        .map_err(|e| err(e.to_string()))?
-        .into_iter()
-        .filter(|p| p.made.kind == "hdr")
-        .collect();
-    if products.is_empty() {
+    let Some((reader, products)) = super::products_of(run_dir, "hdr")? else {
         return Ok(None);
-    }
+    };
     // Every frame row once, by path: each product names its frames by path.
     let frames_by_path: BTreeMap<String, _> = reader
         .frames(&FrameQuery::default())

@@ -4,6 +4,7 @@
 //! code that reads ground truth next to processing results; processing itself never does.
 
 mod colour;
+mod depth;
 mod geometry;
 mod hdr;
 mod rectified;
@@ -15,6 +16,7 @@ use serde::Serialize;
 use stagehand_processing::calibration_store::{self, CalibrationKind, calibrations_dir};
 
 pub use colour::{ColourFigures, LampFigures, evaluate_colour};
+pub use depth::{DepthFigures, evaluate_depth};
 pub use geometry::{CameraFigures, GeometryFigures, evaluate_geometry};
 pub use hdr::{ErrorFigures, HdrFigures, evaluate_hdr};
 pub use rectified::{RectifiedFigures, evaluate_rectified};
@@ -48,6 +50,33 @@ pub struct Report {
     pub hdr: Option<HdrFigures>,
     /// The run's rectified images and BTF views against the true camera geometry.
     pub rectified: Option<RectifiedFigures>,
+    /// The run's depth images against the ground-truth depth (runs with ground truth).
+    pub depth: Option<DepthFigures>,
+}
+
+/// The run's reader and its products of `kind`; `None` when it has none.
+fn products_of(
+    run_dir: &Path,
+    kind: &str,
+) -> Result<
+    Option<(
+        stagehand_dataset::RunReader,
+        Vec<stagehand_dataset::products::StoredProduct>,
+    )>,
+    EvaluateError,
+> {
+    let err = |e: stagehand_dataset::StorageError| EvaluateError::Truth {
+        path: run_dir.display().to_string(),
+        message: e.to_string(),
+    };
+    let reader = stagehand_dataset::RunReader::open(run_dir).map_err(err)?;
+    let products: Vec<_> = reader
+        .products()
+        .map_err(err)?
+        .into_iter()
+        .filter(|p| p.made.kind == kind)
+        .collect();
+    Ok((!products.is_empty()).then_some((reader, products)))
 }
 
 /// Evaluates every calibration of `kinds` stored beside `run_dir` that was computed from it.
@@ -72,6 +101,7 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
         colour: Vec::new(),
         hdr: None,
         rectified: None,
+        depth: None,
     };
     for stored in calibration_store::list(&root)?.into_iter().flatten() {
         if !stored.calibration.inputs.iter().any(|i| i.run_id == run_id) {
@@ -88,5 +118,6 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
     }
     report.hdr = evaluate_hdr(run_dir, &root)?;
     report.rectified = evaluate_rectified(run_dir, &root, &truth)?;
+    report.depth = evaluate_depth(run_dir, &root)?;
     Ok(report)
 }

@@ -10,18 +10,16 @@
 
 use std::path::Path;
 
-use stagehand_processing::calibrate_camera::IntrinsicsStd;
-use stagehand_processing::calibrate_geometry::CameraGeometry;
 use stagehand_processing::calibration_store::{
     self, Calibration, CalibrationKind, calibrations_dir,
 };
 use stagehand_processing::response_calibration::{CameraResponse, ResponseSet};
 use stagehand_processing::response_curve::InverseResponse;
-use stagehand_processing::rig_frame::TurntableAxis;
 use stagehand_processing::weight::DnRange;
-use stagehand_processing::{CameraModel, Distortion, Intrinsics, Pose};
 
-use super::common::calibration::{as_built_rig, as_built_rig_with, stagehand, stagehand_output};
+use super::common::calibration::{
+    as_built_rig, as_built_rig_with, exact_geometry, stagehand, stagehand_output,
+};
 use super::common::run_sequence;
 
 /// Largest relative error accepted on any S_c of any camera and lamp. Measured: 0.16 % at
@@ -136,101 +134,6 @@ fn the_joint_camera_and_lamp_scales_are_recovered_within_half_a_percent() {
         worst < TOLERANCE,
         "worst relative error {worst}: {report:#}"
     );
-}
-
-/// The Rodrigues vector of rotation matrix `m` (through its quaternion, Shepperd's method).
-fn rodrigues(m: [[f64; 3]; 3]) -> [f64; 3] {
-    let trace = m[0][0] + m[1][1] + m[2][2];
-    let (w, x, y, z) = if trace > 0.0 {
-        let s = 2.0 * (1.0 + trace).sqrt();
-        let (a, b, c) = (m[2][1] - m[1][2], m[0][2] - m[2][0], m[1][0] - m[0][1]);
-        (0.25 * s, a / s, b / s, c / s)
-    } else if m[0][0] > m[1][1] && m[0][0] > m[2][2] {
-        let s = 2.0 * (1.0 + m[0][0] - m[1][1] - m[2][2]).sqrt();
-        let (a, b, c) = (m[2][1] - m[1][2], m[0][1] + m[1][0], m[0][2] + m[2][0]);
-        (a / s, 0.25 * s, b / s, c / s)
-    } else if m[1][1] > m[2][2] {
-        let s = 2.0 * (1.0 + m[1][1] - m[0][0] - m[2][2]).sqrt();
-        let (a, b, c) = (m[0][2] - m[2][0], m[0][1] + m[1][0], m[1][2] + m[2][1]);
-        (a / s, b / s, 0.25 * s, c / s)
-    } else {
-        let s = 2.0 * (1.0 + m[2][2] - m[0][0] - m[1][1]).sqrt();
-        let (a, b, c) = (m[1][0] - m[0][1], m[0][2] + m[2][0], m[1][2] + m[2][1]);
-        (a / s, b / s, c / s, 0.25 * s)
-    };
-    let n = (x * x + y * y + z * z).sqrt();
-    if n < 1e-12 {
-        return [0.0; 3];
-    }
-    let angle = 2.0 * n.atan2(w);
-    [x / n * angle, y / n * angle, z / n * angle]
-}
-
-/// A geometry calibration of every camera exactly as built (OpenCV's convention, from
-/// as_built.json), stored under `root`: what a perfect geometric calibration would store.
-fn exact_geometry(root: &Path, truth: &serde_json::Value) -> String {
-    let num = |v: &serde_json::Value| v.as_f64().expect("a number");
-    let cameras: Vec<CameraGeometry> = truth["cameras"]
-        .as_object()
-        .expect("cameras")
-        .iter()
-        .map(|(id, cam)| {
-            let g = &cam["geometry"];
-            let rows = [0, 1, 2].map(|r| [0, 1, 2].map(|c| num(&g["rotation"][r][c])));
-            let t = [0, 1, 2].map(|i| num(&g["translation"][i]));
-            let d = [0, 1, 2, 3, 4].map(|i| num(&g["distortion"][i]));
-            CameraGeometry {
-                camera: id.clone(),
-                model: CameraModel {
-                    intrinsics: Intrinsics {
-                        fx: num(&g["fx"]),
-                        fy: num(&g["fy"]),
-                        cx: num(&g["cx"]),
-                        cy: num(&g["cy"]),
-                    },
-                    distortion: Distortion {
-                        k1: d[0],
-                        k2: d[1],
-                        p1: d[2],
-                        p2: d[3],
-                        k3: d[4],
-                    },
-                },
-                rig_to_camera: Pose {
-                    rotation: rodrigues(rows),
-                    translation: t,
-                },
-                centre_mm: [0, 1, 2].map(|i| num(&g["centre_mm"][i])),
-                rms_px: 0.0,
-                view_rms_px: Vec::new(),
-                std: IntrinsicsStd {
-                    fx: 0.0,
-                    fy: 0.0,
-                    cx: 0.0,
-                    cy: 0.0,
-                },
-                axis: TurntableAxis {
-                    point: t,
-                    direction: [rows[0][2], rows[1][2], rows[2][2]],
-                    radius_mm: 0.0,
-                    rms_mm: 0.0,
-                },
-            }
-        })
-        .collect();
-    let calibration = Calibration {
-        kind: CalibrationKind::Geometry,
-        cameras: cameras.iter().map(|c| c.camera.clone()).collect(),
-        lamps: Vec::new(),
-        inputs: Vec::new(),
-        parameters: serde_json::json!({"exact": true}),
-        result: serde_json::to_value(&cameras).expect("json"),
-        quality: serde_json::json!({}),
-        software: "test".into(),
-    };
-    calibration_store::save(root, calibration)
-        .expect("stored")
-        .id
 }
 
 /// A response calibration of a linear 12-bit sensor for `cameras`, stored under `root`.

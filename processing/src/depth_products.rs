@@ -1,0 +1,315 @@
+//! `stagehand process --products depth`: every laser sweep of a run (the frames one camera took
+//! with the laser on and the sample on the stage, within one block of the script: one laser
+//! position) turned into a depth image by space-time analysis ([`crate::space_time`]) and
+//! triangulation against the laser sheets ([`crate::laser_sheet`], [`crate::ray_plane`]),
+//! through the geometric calibration. One OpenEXR product per sweep and camera: channel `D`,
+//! the distance along the pixel's ray from the camera centre in mm (−1 where unknown), and
+//! `T`, the peak time in frames (−1 where unknown). The sweep's frames stream through one at
+//! a time; sweeps run on every core.
+//!
+//! This is the depth of one laser direction. The merge over directions (seed eqs 4.44–4.45)
+//! and the laser-plane calibration are still to come: the sheets are the rig file's.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+use stagehand_dataset::exr_planes::encode_exr_planes;
+use stagehand_dataset::products::{NewProduct, ProductStore};
+use stagehand_dataset::{FrameKind, FrameQuery, StoredFrame};
+
+use crate::calibrate_geometry::CameraGeometry;
+use crate::error::ProcessingError;
+use crate::laser_sheet::{LaserMount, nominal_sheet};
+use crate::ray_plane::{NO_DEPTH, depth_map};
+use crate::rig_frame::sample_to_camera;
+use crate::run_frames::{dataset_err, decode_frame_in, open_run};
+use crate::space_time::{SpaceTime, SpaceTimeOptions};
+
+/// The fixture of the laser-plane calibration frames, which are not sweeps of the sample.
+pub const PLANES_FIXTURE: &str = "planes";
+
+/// What depth is made with.
+#[derive(Debug, Clone, Copy)]
+pub struct DepthSetup<'a> {
+    /// Every camera's geometry, by id, and the geometry calibration's id.
+    pub geometry: (&'a BTreeMap<String, CameraGeometry>, &'a str),
+    /// The laser's distance from the rig origin (the rig file's), mm.
+    pub laser_distance_mm: f64,
+    /// The turntable's axis id.
+    pub turntable_axis: Option<&'a str>,
+    /// The light arc's axis id.
+    pub light_arc_axis: Option<&'a str>,
+    /// Space-time settings.
+    pub options: SpaceTimeOptions,
+    /// Only these cameras' sweeps (`None`: every camera's).
+    pub cameras: Option<&'a [String]>,
+}
+
+/// One camera's frames of one sweep, in capture order.
+#[derive(Debug, Clone)]
+pub struct Sweep {
+    /// Camera id.
+    pub camera: String,
+    /// The script block the sweep ran in.
+    pub block: String,
+    /// Its frames, by step.
+    pub frames: Vec<StoredFrame>,
+}
+
+/// What a depth pass did.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct DepthSummary {
+    /// Sweeps (per camera) found.
+    pub sweeps: usize,
+    /// Depth images written now.
+    pub written: usize,
+    /// Depth images already current.
+    pub skipped: usize,
+    /// Of the pixels of the images written, the fraction with a depth.
+    pub known_fraction: f64,
+}
+
+/// Every sweep of the run: raw frames with the laser on and not of the planes fixture,
+/// grouped by block and camera; sweeps of fewer than 3 frames are left out.
+pub fn sweeps(run_dir: &Path) -> Result<Vec<Sweep>, ProcessingError> {
+    let reader = open_run(run_dir)?;
+    let page = reader
+        .frames(&FrameQuery {
+            kind: Some(FrameKind::Raw),
+            ..FrameQuery::default()
+        })
+        .map_err(dataset_err(run_dir))?;
+    let mut groups: BTreeMap<(String, String), Vec<StoredFrame>> = BTreeMap::new();
+    for f in page.frames {
+        if f.meta.laser_on && f.meta.fixture != PLANES_FIXTURE {
+            groups
+                .entry((f.meta.block.clone(), f.meta.camera.clone()))
+                .or_default()
+                .push(f);
+        }
+    }
+    Ok(groups
+        .into_iter()
+        .filter(|(_, frames)| frames.len() >= 3)
+        .map(|((block, camera), mut frames)| {
+            frames.sort_by_key(|f| (f.meta.step, f.meta.exposure_index));
+            Sweep {
+                camera,
+                block,
+                frames,
+            }
+        })
+        .collect())
+}
+
+/// The RGB channel that sees a laser of `nm` best (the simulated cameras' anchors: 473 nm
+/// blue, 532 green, 650 red).
+pub fn laser_channel(nm: u32) -> usize {
+    match nm {
+        0..=500 => 2,
+        501..=600 => 1,
+        _ => 0,
+    }
+}
+
+/// An axis angle of a frame, or an error naming the frame.
+fn angle(f: &StoredFrame, axis: Option<&str>, run: &Path) -> Result<f64, ProcessingError> {
+    let Some(axis) = axis else { return Ok(0.0) };
+    f.meta
+        .axes_deg
+        .get(axis)
+        .copied()
+        .filter(|a| a.is_finite())
+        .ok_or_else(|| ProcessingError::Dataset {
+            run: run.display().to_string(),
+            message: format!("frame {} records no angle of axis `{axis}`", f.path),
+        })
+}
+
+/// Writes the depth image of every sweep of the run in `store`; `progress(done, total)`
+/// after each.
+pub fn depth_products(
+    store: &mut ProductStore,
+    setup: DepthSetup<'_>,
+    software: &str,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<DepthSummary, ProcessingError> {
+    let run_dir = store.dir().to_path_buf();
+    let sweeps: Vec<Sweep> = sweeps(&run_dir)?
+        .into_iter()
+        .filter(|s| setup.cameras.is_none_or(|c| c.contains(&s.camera)))
+        .collect();
+    let (cameras, geometry_id) = setup.geometry;
+    let mut summary = DepthSummary {
+        sweeps: sweeps.len(),
+        ..DepthSummary::default()
+    };
+    let mut todo = Vec::new();
+    for sweep in &sweeps {
+        let geometry =
+            cameras
+                .get(&sweep.camera)
+                .ok_or_else(|| ProcessingError::CalibrationMismatch {
+                    id: geometry_id.to_string(),
+                    why: format!(
+                        "it has no geometry for camera `{}` (sweep in block `{}`); calibrate this rig's cameras with `stagehand calibrate geometry`, or process the others alone (`--cameras`)",
+                        sweep.camera, sweep.block
+                    ),
+                })?;
+        let first = sweep.frames[0].meta.step;
+        let new = NewProduct {
+            kind: "depth".into(),
+            key: format!("depth/s{first:06}/{}", sweep.camera),
+            file_name: format!("s{first:06}_{}.exr", sweep.camera),
+            inputs: sweep.frames.iter().map(|f| f.path.clone()).collect(),
+            calibrations: vec![geometry_id.to_string()],
+            software: software.to_string(),
+            parameters: json!({
+                "threshold_sigmas": setup.options.threshold_sigmas,
+                "laser_distance_mm": setup.laser_distance_mm,
+                "sheets": "nominal (rig file)",
+                "distance": "along the unit pixel ray from the camera centre, mm; -1 unknown",
+            }),
+        };
+        if store.is_current(&new).map_err(dataset_err(&run_dir))? {
+            summary.skipped += 1;
+        } else {
+            todo.push((sweep, geometry, new));
+        }
+    }
+    let total = sweeps.len();
+    let mut done = summary.skipped;
+    progress(done, total);
+    let (mut known, mut pixels) = (0usize, 0usize);
+    // A few sweeps per core at a time: each holds two frames and its per-pixel state.
+    let batch = 2 * rayon::current_num_threads().max(1);
+    for chunk in todo.chunks(batch) {
+        let made: Vec<(NewProduct, Vec<u8>, usize, usize)> = chunk
+            .par_iter()
+            .map(|(sweep, geometry, new)| {
+                let (bytes, k, n) = one_sweep(&run_dir, sweep, geometry, &setup, new)?;
+                Ok((new.clone(), bytes, k, n))
+            })
+            .collect::<Result<_, ProcessingError>>()?;
+        for (new, bytes, k, n) in made {
+            store.write(new, &bytes).map_err(dataset_err(&run_dir))?;
+            summary.written += 1;
+            known += k;
+            pixels += n;
+            done += 1;
+            progress(done, total);
+        }
+    }
+    summary.known_fraction = if pixels > 0 {
+        known as f64 / pixels as f64
+    } else {
+        0.0
+    };
+    Ok(summary)
+}
+
+/// One sweep's depth image: its OpenEXR bytes, and the pixels known and in all.
+fn one_sweep(
+    run_dir: &Path,
+    sweep: &Sweep,
+    geometry: &CameraGeometry,
+    setup: &DepthSetup<'_>,
+    new: &NewProduct,
+) -> Result<(Vec<u8>, usize, usize), ProcessingError> {
+    let first = &sweep.frames[0];
+    let (w, h) = (first.meta.width as usize, first.meta.height as usize);
+    let channel = laser_channel(first.meta.laser_colour_nm);
+    let saturation = ((1u32 << first.meta.bit_depth.min(16)) - 1) as f32;
+    let mut st = SpaceTime::new(
+        w,
+        h,
+        SpaceTimeOptions {
+            saturation: Some(saturation),
+            ..setup.options
+        },
+    )?;
+    let mut tilts = Vec::with_capacity(sweep.frames.len());
+    for f in &sweep.frames {
+        let png = decode_frame_in(run_dir, f)?;
+        if (png.width as usize, png.height as usize) != (w, h) {
+            return Err(ProcessingError::Dataset {
+                run: run_dir.display().to_string(),
+                message: format!(
+                    "frame {} is {}×{} but its sweep's are {w}×{h}",
+                    f.path, png.width, png.height
+                ),
+            });
+        }
+        let plane: Vec<f32> = png
+            .pixels
+            .chunks_exact(3)
+            .map(|px| f32::from(px[channel]))
+            .collect();
+        st.push(&plane)?;
+        tilts.push(
+            f.meta
+                .laser_tilt_deg
+                .ok_or_else(|| ProcessingError::Dataset {
+                    run: run_dir.display().to_string(),
+                    message: format!(
+                        "frame {} records no laser tilt; a sweep needs the tilt of every line",
+                        f.path
+                    ),
+                })?,
+        );
+    }
+    let times = st.finish()?;
+    let table = angle(first, setup.turntable_axis, run_dir)?;
+    let arc = angle(first, setup.light_arc_axis, run_dir)?;
+    let mount = LaserMount {
+        elevation_deg: first
+            .meta
+            .laser_mount_deg
+            .ok_or_else(|| ProcessingError::Dataset {
+                run: run_dir.display().to_string(),
+                message: format!("frame {} records no laser mount elevation", first.path),
+            })?,
+        distance_mm: setup.laser_distance_mm,
+    };
+    let pose = sample_to_camera(&geometry.rig_to_camera, table);
+    let last = (tilts.len() - 1) as f64;
+    let depth = depth_map(&times, &geometry.model, &pose, |t| {
+        if !(0.0..=last).contains(&t) {
+            return None;
+        }
+        let k = (t.floor() as usize).min(tilts.len() - 2);
+        let frac = t - k as f64;
+        let tilt = tilts[k] + (tilts[k + 1] - tilts[k]) * frac;
+        nominal_sheet(&mount, arc, tilt, table)
+    });
+    let known = depth.iter().filter(|d| **d != NO_DEPTH).count();
+    let mut samples = Vec::with_capacity(2 * w * h);
+    for (d, t) in depth.iter().zip(&times.time) {
+        samples.push(*d);
+        samples.push(*t);
+    }
+    let metadata = json!({
+        "camera": sweep.camera,
+        "block": sweep.block,
+        "steps": [first.meta.step, sweep.frames[sweep.frames.len() - 1].meta.step],
+        "turntable_deg": table,
+        "light_arc_deg": arc,
+        "laser_mount_deg": mount.elevation_deg,
+        "laser_colour_nm": first.meta.laser_colour_nm,
+        "noise": times.noise,
+        "channels": {"D": "distance along the pixel ray, mm; -1 unknown", "T": "peak time, frames; -1 unknown"},
+    });
+    let bytes = encode_exr_planes(
+        &new.file_name,
+        w as u32,
+        h as u32,
+        &["D".to_string(), "T".to_string()],
+        &samples,
+        &metadata.to_string(),
+    )
+    .map_err(dataset_err(run_dir))?;
+    Ok((bytes, known, w * h))
+}

@@ -1,0 +1,86 @@
+//! The laser sheet of a sweep frame as the rig file places the laser (seed 004 §2.2): the unit
+//! sits on the light arc at its mount elevation and distance, at the arc's azimuth; its
+//! central ray aims at the rig origin and turns by the tilt axis's angle about the arc's
+//! horizontal tangent (positive tilt raises the ray, moving the line away from the laser);
+//! the fan spreads along that tangent. The sheet is the plane through the emitter holding the
+//! central ray and the fan, given in the sample frame (the rig frame turned back by the
+//! turntable's angle). This is the nominal sheet; a laser-plane calibration corrects it.
+
+use nalgebra::{Rotation3, Unit, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::ray_plane::Plane;
+
+/// Where the laser unit is mounted on the light arc.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LaserMount {
+    /// Elevation on the arc above the sample plane, degrees.
+    pub elevation_deg: f64,
+    /// Distance of the emitter from the rig origin, mm.
+    pub distance_mm: f64,
+}
+
+/// The sheet of `mount` with the light arc at `light_arc_deg`, the fan tilted by `tilt_deg`
+/// and the turntable at `turntable_deg`, in the sample frame; `None` for a degenerate mount
+/// (zero distance, or a ray along the tangent).
+pub fn nominal_sheet(
+    mount: &LaserMount,
+    light_arc_deg: f64,
+    tilt_deg: f64,
+    turntable_deg: f64,
+) -> Option<Plane> {
+    let (a, e) = (light_arc_deg.to_radians(), mount.elevation_deg.to_radians());
+    let origin = Vector3::new(e.cos() * a.cos(), e.cos() * a.sin(), e.sin()) * mount.distance_mm;
+    let tangent = Unit::new_normalize(Vector3::new(-a.sin(), a.cos(), 0.0));
+    let aim = (-origin).try_normalize(1e-12)?;
+    let centre = Rotation3::from_axis_angle(&tangent, tilt_deg.to_radians()) * aim;
+    let normal = centre.cross(&tangent).try_normalize(1e-12)?;
+    let to_sample = Rotation3::from_axis_angle(&Vector3::z_axis(), -turntable_deg.to_radians());
+    Plane::through((to_sample * origin).into(), (to_sample * normal).into())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mount() -> LaserMount {
+        LaserMount {
+            elevation_deg: 45.0,
+            distance_mm: 1000.0,
+        }
+    }
+
+    /// Where the sheet crosses the sample plane's x axis (y = 0, z = 0).
+    fn crossing_x(p: &Plane) -> f64 {
+        p.d / p.normal[0]
+    }
+
+    #[test]
+    fn the_untilted_sheet_crosses_the_origin_and_tilt_moves_the_line_away_from_the_laser() {
+        let flat = nominal_sheet(&mount(), 0.0, 0.0, 0.0).unwrap();
+        assert!(flat.d.abs() < 1e-9, "{flat:?}");
+        // The fan spreads along y: the line on the sample runs along y.
+        assert!(flat.normal[1].abs() < 1e-12);
+        let tilted = nominal_sheet(&mount(), 0.0, 2.0, 0.0).unwrap();
+        // The laser stands at +x: the line moves to −x, by about 1000·tan 2° / sin 45°.
+        let x = crossing_x(&tilted);
+        assert!(x < -40.0 && x > -60.0, "{x}");
+    }
+
+    #[test]
+    fn turning_the_table_turns_the_sheet_back_in_the_sample_frame() {
+        // The arc at 90° with the table at 90° lights the sample as the arc at 0° with the
+        // table at 0° does.
+        let a = nominal_sheet(&mount(), 0.0, 1.5, 0.0).unwrap();
+        let b = nominal_sheet(&mount(), 90.0, 1.5, 90.0).unwrap();
+        for i in 0..3 {
+            assert!((a.normal[i] - b.normal[i]).abs() < 1e-12, "{a:?} {b:?}");
+        }
+        assert!((a.d - b.d).abs() < 1e-9);
+        let none = LaserMount {
+            elevation_deg: 45.0,
+            distance_mm: 0.0,
+        };
+        assert!(nominal_sheet(&none, 0.0, 0.0, 0.0).is_none());
+    }
+}
