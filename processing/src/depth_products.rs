@@ -22,14 +22,36 @@ use stagehand_dataset::{FrameKind, FrameQuery, StoredFrame};
 
 use crate::calibrate_geometry::CameraGeometry;
 use crate::error::ProcessingError;
+use crate::gray_image::GrayImage;
+use crate::laser_line::{LineOptions, ScanAxis, detect_line};
 use crate::laser_sheet::{LaserMount, nominal_sheet};
-use crate::ray_plane::{NO_DEPTH, depth_map};
+use crate::ray_plane::{NO_DEPTH, depth_map, ray_distance};
 use crate::rig_frame::sample_to_camera;
 use crate::run_frames::{dataset_err, decode_frame_in, open_run};
-use crate::space_time::{SpaceTime, SpaceTimeOptions};
+use crate::space_time::{NO_TIME, SpaceTime, SpaceTimeOptions};
 
 /// The fixture of the laser-plane calibration frames, which are not sweeps of the sample.
 pub const PLANES_FIXTURE: &str = "planes";
+
+/// How a sweep becomes depth.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum DepthMethod {
+    /// Each pixel's peak time over the sweep (Curless–Levoy): products of kind `depth`.
+    SpaceTime,
+    /// The naive baseline of Horus and FabScan: the line's peak across each column (or row)
+    /// of every frame, triangulated against that frame's sheet: kind `depth_per_frame`.
+    PerFrame,
+}
+
+impl DepthMethod {
+    /// The product kind of depth images made this way.
+    pub fn kind(self) -> &'static str {
+        match self {
+            DepthMethod::SpaceTime => "depth",
+            DepthMethod::PerFrame => "depth_per_frame",
+        }
+    }
+}
 
 /// What depth is made with.
 #[derive(Debug, Clone, Copy)]
@@ -46,6 +68,8 @@ pub struct DepthSetup<'a> {
     pub options: SpaceTimeOptions,
     /// Only these cameras' sweeps (`None`: every camera's).
     pub cameras: Option<&'a [String]>,
+    /// Space-time analysis, or the per-frame baseline.
+    pub method: DepthMethod,
 }
 
 /// One camera's frames of one sweep, in capture order.
@@ -160,9 +184,10 @@ pub fn depth_products(
                     ),
                 })?;
         let first = sweep.frames[0].meta.step;
+        let kind = setup.method.kind();
         let new = NewProduct {
-            kind: "depth".into(),
-            key: format!("depth/s{first:06}/{}", sweep.camera),
+            kind: kind.into(),
+            key: format!("{kind}/s{first:06}/{}", sweep.camera),
             file_name: format!("s{first:06}_{}.exr", sweep.camera),
             inputs: sweep.frames.iter().map(|f| f.path.clone()).collect(),
             calibrations: vec![geometry_id.to_string()],
@@ -223,16 +248,33 @@ fn one_sweep(
     let (w, h) = (first.meta.width as usize, first.meta.height as usize);
     let channel = laser_channel(first.meta.laser_colour_nm);
     let saturation = ((1u32 << first.meta.bit_depth.min(16)) - 1) as f32;
-    let mut st = SpaceTime::new(
-        w,
-        h,
-        SpaceTimeOptions {
-            saturation: Some(saturation),
-            ..setup.options
-        },
-    )?;
+    let mut st = match setup.method {
+        DepthMethod::SpaceTime => Some(SpaceTime::new(
+            w,
+            h,
+            SpaceTimeOptions {
+                saturation: Some(saturation),
+                ..setup.options
+            },
+        )?),
+        DepthMethod::PerFrame => None,
+    };
+    let table = angle(first, setup.turntable_axis, run_dir)?;
+    let arc = angle(first, setup.light_arc_axis, run_dir)?;
+    let mount = LaserMount {
+        elevation_deg: first
+            .meta
+            .laser_mount_deg
+            .ok_or_else(|| ProcessingError::Dataset {
+                run: run_dir.display().to_string(),
+                message: format!("frame {} records no laser mount elevation", first.path),
+            })?,
+        distance_mm: setup.laser_distance_mm,
+    };
+    let pose = sample_to_camera(&geometry.rig_to_camera, table);
+    let mut per_frame = PerFrame::new(w, h, scan_axis(geometry, &pose, arc, table));
     let mut tilts = Vec::with_capacity(sweep.frames.len());
-    for f in &sweep.frames {
+    for (k, f) in sweep.frames.iter().enumerate() {
         let png = decode_frame_in(run_dir, f)?;
         if (png.width as usize, png.height as usize) != (w, h) {
             return Err(ProcessingError::Dataset {
@@ -248,46 +290,56 @@ fn one_sweep(
             .chunks_exact(3)
             .map(|px| f32::from(px[channel]))
             .collect();
-        st.push(&plane)?;
-        tilts.push(
-            f.meta
-                .laser_tilt_deg
-                .ok_or_else(|| ProcessingError::Dataset {
-                    run: run_dir.display().to_string(),
-                    message: format!(
-                        "frame {} records no laser tilt; a sweep needs the tilt of every line",
-                        f.path
-                    ),
-                })?,
-        );
-    }
-    let times = st.finish()?;
-    let table = angle(first, setup.turntable_axis, run_dir)?;
-    let arc = angle(first, setup.light_arc_axis, run_dir)?;
-    let mount = LaserMount {
-        elevation_deg: first
+        let tilt = f
             .meta
-            .laser_mount_deg
+            .laser_tilt_deg
             .ok_or_else(|| ProcessingError::Dataset {
                 run: run_dir.display().to_string(),
-                message: format!("frame {} records no laser mount elevation", first.path),
-            })?,
-        distance_mm: setup.laser_distance_mm,
-    };
-    let pose = sample_to_camera(&geometry.rig_to_camera, table);
-    let last = (tilts.len() - 1) as f64;
-    let depth = depth_map(&times, &geometry.model, &pose, |t| {
-        if !(0.0..=last).contains(&t) {
-            return None;
+                message: format!(
+                    "frame {} records no laser tilt; a sweep needs the tilt of every line",
+                    f.path
+                ),
+            })?;
+        tilts.push(tilt);
+        match st.as_mut() {
+            Some(st) => st.push(&plane)?,
+            None => {
+                let image = GrayImage {
+                    width: w,
+                    height: h,
+                    data: plane,
+                };
+                let options = LineOptions {
+                    saturation: Some(saturation),
+                    ..LineOptions::default()
+                };
+                let sheet = nominal_sheet(&mount, arc, tilt, table);
+                per_frame.add(&image, &options, k, |u, v| {
+                    sheet.and_then(|s| ray_distance(&geometry.model, &pose, (u, v), &s))
+                })?;
+            }
         }
-        let k = (t.floor() as usize).min(tilts.len() - 2);
-        let frac = t - k as f64;
-        let tilt = tilts[k] + (tilts[k + 1] - tilts[k]) * frac;
-        nominal_sheet(&mount, arc, tilt, table)
-    });
+    }
+    let (depth, time) = match st {
+        Some(st) => {
+            let times = st.finish()?;
+            let last = (tilts.len() - 1) as f64;
+            let depth = depth_map(&times, &geometry.model, &pose, |t| {
+                if !(0.0..=last).contains(&t) {
+                    return None;
+                }
+                let k = (t.floor() as usize).min(tilts.len() - 2);
+                let frac = t - k as f64;
+                let tilt = tilts[k] + (tilts[k + 1] - tilts[k]) * frac;
+                nominal_sheet(&mount, arc, tilt, table)
+            });
+            (depth, times.time)
+        }
+        None => (per_frame.depth, per_frame.time),
+    };
     let known = depth.iter().filter(|d| **d != NO_DEPTH).count();
     let mut samples = Vec::with_capacity(2 * w * h);
-    for (d, t) in depth.iter().zip(&times.time) {
+    for (d, t) in depth.iter().zip(&time) {
         samples.push(*d);
         samples.push(*t);
     }
@@ -299,7 +351,7 @@ fn one_sweep(
         "light_arc_deg": arc,
         "laser_mount_deg": mount.elevation_deg,
         "laser_colour_nm": first.meta.laser_colour_nm,
-        "noise": times.noise,
+        "method": setup.method,
         "channels": {"D": "distance along the pixel ray, mm; -1 unknown", "T": "peak time, frames; -1 unknown"},
     });
     let bytes = encode_exr_planes(
@@ -312,4 +364,76 @@ fn one_sweep(
     )
     .map_err(dataset_err(run_dir))?;
     Ok((bytes, known, w * h))
+}
+
+/// Which way to scan a camera's image across the line: along the image axis the laser's fan
+/// (the arc's horizontal tangent) runs least along.
+fn scan_axis(
+    geometry: &CameraGeometry,
+    pose: &crate::camera_model::Pose,
+    arc: f64,
+    table: f64,
+) -> ScanAxis {
+    let (a, t) = (arc.to_radians(), -table.to_radians());
+    let fan = nalgebra::Vector3::new(-(a + t).sin(), (a + t).cos(), 0.0) * 10.0;
+    let origin = geometry.model.project(pose, &nalgebra::Vector3::zeros());
+    let along = geometry.model.project(pose, &fan);
+    match (origin, along) {
+        (Some(o), Some(p)) if (p.y - o.y).abs() > (p.x - o.x).abs() => ScanAxis::Rows,
+        _ => ScanAxis::Columns,
+    }
+}
+
+/// The per-frame baseline's image: at each pixel the depth of the brightest line point that
+/// fell in it, over the sweep's frames.
+struct PerFrame {
+    width: usize,
+    axis: ScanAxis,
+    depth: Vec<f32>,
+    time: Vec<f32>,
+    height: Vec<f32>,
+}
+
+impl PerFrame {
+    fn new(width: usize, height: usize, axis: ScanAxis) -> PerFrame {
+        PerFrame {
+            width,
+            axis,
+            depth: vec![NO_DEPTH; width * height],
+            time: vec![NO_TIME; width * height],
+            height: vec![0.0; width * height],
+        }
+    }
+
+    /// Adds frame `k`'s line: each point triangulated by `distance(u, v)`.
+    fn add(
+        &mut self,
+        image: &GrayImage,
+        options: &LineOptions,
+        k: usize,
+        distance: impl Fn(f64, f64) -> Option<f64>,
+    ) -> Result<(), ProcessingError> {
+        let found = detect_line(image, self.axis, options)?;
+        let rows = self.depth.len() / self.width.max(1);
+        for p in found.points {
+            let (u, v) = match self.axis {
+                ScanAxis::Columns => (p.along as f64, p.across),
+                ScanAxis::Rows => (p.across, p.along as f64),
+            };
+            let (x, y) = (u.round() as usize, v.round() as usize);
+            if x >= self.width || y >= rows {
+                continue;
+            }
+            let i = y * self.width + x;
+            if p.height <= self.height[i] {
+                continue;
+            }
+            if let Some(d) = distance(u, v) {
+                self.depth[i] = d as f32;
+                self.time[i] = k as f32;
+                self.height[i] = p.height;
+            }
+        }
+        Ok(())
+    }
 }

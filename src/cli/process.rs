@@ -17,7 +17,7 @@ use stagehand_processing::capture_products::{
     HdrCalibrations, Outputs, ProductSummary, Rectification, capture_products,
 };
 use stagehand_processing::colour_calibration::ColourSet;
-use stagehand_processing::depth_products::{DepthSetup, DepthSummary, depth_products};
+use stagehand_processing::depth_products::{DepthMethod, DepthSetup, DepthSummary, depth_products};
 use stagehand_processing::hdr_frame::MergeWeight;
 use stagehand_processing::rectify::RectifyGrid;
 use stagehand_processing::response_calibration::ResponseSet;
@@ -45,6 +45,15 @@ pub enum Product {
     Depth,
 }
 
+/// `--depth-method`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum DepthMethodArg {
+    /// Each pixel's peak time over the sweep (Curless–Levoy).
+    SpaceTime,
+    /// The line's peak across each column or row of every frame (Horus, FabScan).
+    PerFrame,
+}
+
 /// Arguments of `stagehand process`.
 #[derive(Args, Debug)]
 pub struct ProcessArgs {
@@ -68,6 +77,11 @@ pub struct ProcessArgs {
     /// Centre of that square on the reference plane, mm (x,y in the sample frame).
     #[arg(long, value_delimiter = ',', num_args = 2, default_values_t = [0.0, 0.0])]
     pub centre_mm: Vec<f64>,
+    /// How `depth` turns a sweep into depth: `space-time` (each pixel's peak time over the
+    /// sweep) or `per-frame` (the naive baseline: the line's peak in each frame; products of
+    /// kind `depth_per_frame`).
+    #[arg(long, value_enum, default_value = "space-time")]
+    pub depth_method: DepthMethodArg,
     /// Only these cameras' captures, comma-separated (e.g. those a geometric calibration
     /// covers). Default: every camera's.
     #[arg(long, value_delimiter = ',')]
@@ -279,6 +293,10 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
                 .map(|a| a.id.as_str()),
             options: SpaceTimeOptions::default(),
             cameras,
+            method: match args.depth_method {
+                DepthMethodArg::SpaceTime => DepthMethod::SpaceTime,
+                DepthMethodArg::PerFrame => DepthMethod::PerFrame,
+            },
         };
         let bar = progress_bar("sweeps");
         let made = depth_products(&mut store, setup, &software, &mut |done, total| {

@@ -34,16 +34,18 @@ pub struct DepthFigures {
     pub known_fraction: f64,
 }
 
-/// Evaluates the run's `depth` products, if it has any and ground truth beside its frames.
+/// Evaluates the run's depth products of `kind` (`depth`, `depth_per_frame`), if it has any
+/// and ground truth beside its frames.
 pub fn evaluate_depth(
     run_dir: &Path,
     calibrations_root: &Path,
+    kind: &str,
 ) -> Result<Option<DepthFigures>, EvaluateError> {
     let err = |message: String| EvaluateError::Truth {
         path: run_dir.display().to_string(),
         message,
     };
-    let Some((reader, products)) = super::products_of(run_dir, "depth")? else {
+    let Some((reader, products)) = super::products_of(run_dir, kind)? else {
         return Ok(None);
     };
     let truth_rows: BTreeMap<String, String> = reader

@@ -52,6 +52,8 @@ pub struct Report {
     pub rectified: Option<RectifiedFigures>,
     /// The run's depth images against the ground-truth depth (runs with ground truth).
     pub depth: Option<DepthFigures>,
+    /// The per-frame baseline's depth images, measured the same way.
+    pub depth_per_frame: Option<DepthFigures>,
 }
 
 /// The run's reader and its products of `kind`; `None` when it has none.
@@ -102,6 +104,7 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
         hdr: None,
         rectified: None,
         depth: None,
+        depth_per_frame: None,
     };
     for stored in calibration_store::list(&root)?.into_iter().flatten() {
         if !stored.calibration.inputs.iter().any(|i| i.run_id == run_id) {
@@ -118,6 +121,7 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
     }
     report.hdr = evaluate_hdr(run_dir, &root)?;
     report.rectified = evaluate_rectified(run_dir, &root, &truth)?;
-    report.depth = evaluate_depth(run_dir, &root)?;
+    report.depth = evaluate_depth(run_dir, &root, "depth")?;
+    report.depth_per_frame = evaluate_depth(run_dir, &root, "depth_per_frame")?;
     Ok(report)
 }

@@ -196,7 +196,10 @@ mod tests {
             prop_assert!((f - g).abs() <= 1e-12 * f.max(g), "{f} {g}");
         }
 
-        /// f32 against f64: stated bound 1e-4 relative (α ≥ 0.01, cosθ ≥ 1e-3).
+        /// f32 against f64: stated bound 1e-4 relative plus the f32 rounding of D's
+        /// denominator, 1 − cos²θ_h(1 − α²), which is as small as α² at the peak and carries
+        /// an absolute error of a few f32 ε: 16 ε/α² relative (α ≥ 0.01, cosθ ≥ 1e-3; a run
+        /// of 30,000 cases once found 1.05e-4 against the former flat 1e-4).
         #[test]
         fn f32_agrees_with_f64(ti in 0.0f64..1.569, pi_ in 0.0f64..6.3, to in 0.0f64..1.569,
                                po in 0.0f64..6.3, a in 0.01f64..2.0, f0 in 0.0f64..1.0) {
@@ -204,7 +207,8 @@ mod tests {
             let x = cook_torrance_ggx(DVec3::Z, wi, wo, a, Fresnel::Schlick { f0 });
             let y = cook_torrance_ggx_f32(Vec3A::Z, wi.as_vec3a(), wo.as_vec3a(), a as f32,
                                           f0 as f32) as f64;
-            prop_assert!((x - y).abs() <= 1e-4 * x + 1e-30, "{x} {y}");
+            let bound = 1e-4 + 16.0 * f64::from(f32::EPSILON) / (a * a);
+            prop_assert!((x - y).abs() <= bound * x + 1e-30, "{x} {y}");
         }
     }
 

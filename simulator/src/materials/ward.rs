@@ -247,8 +247,12 @@ mod tests {
             }
         }
 
-        /// f32 against f64: stated bound 1e-4 relative where the lobe is above 1e-6 of its
-        /// peak value (the f32 exponent loses absolute precision far out in the tail).
+        /// f32 against f64: stated bound 1e-4 relative plus the f32 exponent's own rounding,
+        /// where the lobe is above 1e-6 of its peak value (the f32 exponent loses absolute
+        /// precision far out in the tail). That rounding: tan²θ_h/α² is formed from 1 − cos²θ_h,
+        /// which carries an absolute error of a few f32 ε, so the exponent is off by about
+        /// ε/(cos²θ_h α²) and the lobe by that relative amount (1e-3 at α = 0.01; a run once
+        /// found 1.06e-4 at α = 0.016 against the former flat 1e-4).
         #[test]
         fn f32_agrees_with_f64(ti in 0.0f64..1.5, pi_ in 0.0f64..6.3, to in 0.0f64..1.5,
                                po in 0.0f64..6.3, ax in 0.01f64..2.0, ay in 0.01f64..2.0) {
@@ -260,16 +264,45 @@ mod tests {
             let peak = 1.0 / (4.0 * std::f64::consts::PI * ax * ay
                 * (wi.z.max(MIN_COS) * wo.z.max(MIN_COS)).sqrt());
             if f64v > 1e-6 * peak {
-                prop_assert!((f32v - f64v).abs() <= 1e-4 * f64v, "{f32v} {f64v}");
+                let bound = 1e-4 + exponent_rounding(wi, wo, ax.min(ay));
+                prop_assert!((f32v - f64v).abs() <= bound * f64v, "{f32v} {f64v}");
             } else {
                 prop_assert!(f32v <= 2e-6 * peak + 1e-30);
             }
         }
     }
 
+    /// The relative error the f32 lobe's exponent can carry at these directions and roughness
+    /// (see `f32_agrees_with_f64`): 8 ε / (cos²θ_h α²).
+    fn exponent_rounding(wi: DVec3, wo: DVec3, alpha: f64) -> f64 {
+        let h = (wi + wo).normalize_or_zero();
+        8.0 * f64::from(f32::EPSILON) / (h.z * h.z * alpha * alpha).max(1e-12)
+    }
+
+    /// The input a proptest run once failed under the former flat 1e-4 bound (1.06e-4).
+    #[test]
+    fn a_sharp_lobe_near_its_peak_stays_within_the_exponents_rounding() {
+        let dir = |t: f64, p: f64| DVec3::new(t.sin() * p.cos(), t.sin() * p.sin(), t.cos());
+        let (wi, wo, a) = (
+            dir(0.12072179336134961, 4.297828154514393),
+            dir(0.15586268086096774, 0.4710608965786234),
+            0.016315106401758074,
+        );
+        let x = ward_iso(DVec3::Z, wi, wo, a);
+        let y = f64::from(ward_iso_f32(
+            Vec3A::Z,
+            wi.as_vec3a(),
+            wo.as_vec3a(),
+            a as f32,
+        ));
+        let bound = 1e-4 + exponent_rounding(wi, wo, a);
+        assert!((x - y).abs() <= bound * x, "{x} {y} bound {bound}");
+        assert!(bound > 1.06e-4, "the bound covers what was seen");
+    }
+
     proptest! {
         /// Isotropic f32 against f64: the same stated bound as the anisotropic pair, 1e-4
-        /// relative where the lobe is above 1e-6 of its peak.
+        /// relative plus the exponent's rounding, where the lobe is above 1e-6 of its peak.
         #[test]
         fn iso_f32_agrees_with_f64(ti in 0.0f64..1.5, pi_ in 0.0f64..6.3, to in 0.0f64..1.5,
                                    po in 0.0f64..6.3, a in 0.01f64..2.0) {
@@ -279,7 +312,8 @@ mod tests {
             let peak = 1.0 / (4.0 * std::f64::consts::PI * a * a
                 * (wi.z.max(MIN_COS) * wo.z.max(MIN_COS)).sqrt());
             if x > 1e-6 * peak {
-                prop_assert!((x - y).abs() <= 1e-4 * x, "{x} {y}");
+                let bound = 1e-4 + exponent_rounding(wi, wo, a);
+                prop_assert!((x - y).abs() <= bound * x, "{x} {y}");
             } else {
                 prop_assert!(y <= 2e-6 * peak + 1e-30);
             }
