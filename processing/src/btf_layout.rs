@@ -8,13 +8,14 @@
 //! measure lamps).
 
 use std::collections::BTreeMap;
+use std::path::Path;
 
 use nalgebra::{Rotation3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::calibrate_geometry::CameraGeometry;
 use crate::error::ProcessingError;
-use crate::run_frames::BracketKey;
+use crate::run_frames::{BracketKey, axis_angle};
 
 /// A lamp on the light arc, as the rig file places it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -118,29 +119,10 @@ fn in_sample_frame(p: Vector3<f64>, turntable_deg: f64) -> Vector3<f64> {
     Rotation3::from_axis_angle(&Vector3::z_axis(), -turntable_deg.to_radians()) * p
 }
 
-/// An axis angle of a capture: 0 when the rig has no such axis; an error naming the frame
-/// when the rig has it but the frame does not record it.
-pub fn axis_angle(key: &BracketKey, axis: Option<&str>) -> Result<f64, ProcessingError> {
-    let Some(axis) = axis else { return Ok(0.0) };
-    key.meta
-        .axes_deg
-        .get(axis)
-        .copied()
-        .filter(|a| a.is_finite())
-        .ok_or_else(|| ProcessingError::Dataset {
-            run: String::new(),
-            message: format!(
-                "frame {} (step {}, camera {}) records no angle of axis `{axis}`",
-                key.frames.first().map_or("?", |f| f.path.as_str()),
-                key.step,
-                key.camera
-            ),
-        })
-}
-
 /// Lays out the BTF of `keys`: every capture with exactly one lamp of `lamps` on, by a camera
 /// `geometry` covers. The others are listed as left out with the reason.
 pub fn btf_layout(
+    run: &Path,
     keys: &[BracketKey],
     geometry: &BTreeMap<String, CameraGeometry>,
     lamps: &[LampPlacement],
@@ -178,8 +160,9 @@ pub fn btf_layout(
             ));
             continue;
         };
-        let table = axis_angle(key, axes.turntable.as_deref())?;
-        let arc = axis_angle(key, axes.light_arc.as_deref())?;
+        let path = key.frames.first().map_or("?", |f| f.path.as_str());
+        let table = axis_angle(run, &key.meta, path, axes.turntable.as_deref())?;
+        let arc = axis_angle(run, &key.meta, path, axes.light_arc.as_deref())?;
         let view_key = (angle_key(table), key.camera.clone());
         let relative = (arc - table).rem_euclid(360.0);
         let light_key = (angle_key(relative), lamp.id.clone());
@@ -307,7 +290,7 @@ mod tests {
             key(4, "cam1", 90.0, 0.0, &["lamp1"]),
             key(5, "cam1", 90.0, 0.0, &[]),
         ];
-        let layout = btf_layout(&keys, &geo, &lamps, &axes()).unwrap();
+        let layout = btf_layout(Path::new("run"), &keys, &geo, &lamps, &axes()).unwrap();
         assert_eq!(layout.views.len(), 2);
         assert_eq!(layout.lights.len(), 3);
         assert_eq!(layout.cells.len(), 4);
@@ -340,7 +323,7 @@ mod tests {
             key(2, "cam1", 0.0, 0.0, &["tube"]),
             key(3, "cam1", 0.0, 0.0, &["lamp1", "lamp2"]),
         ];
-        let layout = btf_layout(&keys, &geo, &lamps, &axes()).unwrap();
+        let layout = btf_layout(Path::new("run"), &keys, &geo, &lamps, &axes()).unwrap();
         assert!(layout.cells.is_empty());
         let why: Vec<&str> = layout.left_out.iter().map(|l| l.2.as_str()).collect();
         assert!(why[0].contains("does not cover"), "{why:?}");
@@ -349,7 +332,7 @@ mod tests {
         // A frame that does not record the turntable is an error naming it.
         let mut no_axis = key(4, "cam1", 0.0, 0.0, &["lamp1"]);
         no_axis.meta.axes_deg.clear();
-        let err = btf_layout(&[no_axis], &geo, &lamps, &axes()).unwrap_err();
+        let err = btf_layout(Path::new("run"), &[no_axis], &geo, &lamps, &axes()).unwrap_err();
         assert!(err.to_string().contains("turntable"), "{err}");
     }
 }

@@ -21,7 +21,7 @@ use stagehand_dataset::exr_hdr::encode_exr;
 use stagehand_dataset::exr_planes::encode_exr_planes;
 use stagehand_dataset::products::{NewProduct, ProductStore};
 
-use crate::btf_layout::{BtfLayout, axis_angle};
+use crate::btf_layout::BtfLayout;
 use crate::calibrate_geometry::CameraGeometry;
 use crate::colour_calibration::ColourSet;
 use crate::error::ProcessingError;
@@ -29,7 +29,9 @@ use crate::hdr_frame::{MergeWeight, PixelState, RgbExposure, merge_rgb_frames};
 use crate::rectify::{Image, Rectified, RectifyGrid, RectifyMap};
 use crate::response_calibration::{CameraResponse, ResponseSet};
 use crate::rig_frame::sample_to_camera;
-use crate::run_frames::{BracketKey, bracket_keys, dataset_err, decode_frame_in, open_run};
+use crate::run_frames::{
+    BracketKey, axis_angle, bracket_keys, dataset_err, decode_frame_in, open_run,
+};
 use crate::zarr_array::{ZarrArray, ZarrType, group_metadata};
 
 /// The calibrations an HDR merge is made with.
@@ -307,13 +309,8 @@ pub fn capture_products(
                     ),
                 }
             })?;
-            let table = axis_angle(key, r.turntable_axis).map_err(|e| match e {
-                ProcessingError::Dataset { message, .. } => ProcessingError::Dataset {
-                    run: run_dir.display().to_string(),
-                    message,
-                },
-                other => other,
-            })?;
+            let path = key.frames.first().map_or("?", |f| f.path.as_str());
+            let table = axis_angle(&run_dir, &key.meta, path, r.turntable_axis)?;
             placed = Some((geometry, table));
             let parameters = json!({
                 "weight": cal.weight,

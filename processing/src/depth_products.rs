@@ -27,7 +27,7 @@ use crate::laser_line::{LineOptions, ScanAxis, detect_line};
 use crate::laser_sheet::{LaserMount, nominal_sheet};
 use crate::ray_plane::{NO_DEPTH, depth_map, ray_distance};
 use crate::rig_frame::sample_to_camera;
-use crate::run_frames::{dataset_err, decode_frame_in, open_run};
+use crate::run_frames::{axis_angle, dataset_err, decode_frame_in, open_run};
 use crate::space_time::{NO_TIME, SpaceTime, SpaceTimeOptions};
 
 /// The fixture of the laser-plane calibration frames, which are not sweeps of the sample.
@@ -139,20 +139,6 @@ pub fn laser_channel(nm: u32) -> usize {
     }
 }
 
-/// An axis angle of a frame, or an error naming the frame.
-fn angle(f: &StoredFrame, axis: Option<&str>, run: &Path) -> Result<f64, ProcessingError> {
-    let Some(axis) = axis else { return Ok(0.0) };
-    f.meta
-        .axes_deg
-        .get(axis)
-        .copied()
-        .filter(|a| a.is_finite())
-        .ok_or_else(|| ProcessingError::Dataset {
-            run: run.display().to_string(),
-            message: format!("frame {} records no angle of axis `{axis}`", f.path),
-        })
-}
-
 /// Writes the depth image of every sweep of the run in `store`; `progress(done, total)`
 /// after each.
 pub fn depth_products(
@@ -259,8 +245,8 @@ fn one_sweep(
         )?),
         DepthMethod::PerFrame => None,
     };
-    let table = angle(first, setup.turntable_axis, run_dir)?;
-    let arc = angle(first, setup.light_arc_axis, run_dir)?;
+    let table = axis_angle(run_dir, &first.meta, &first.path, setup.turntable_axis)?;
+    let arc = axis_angle(run_dir, &first.meta, &first.path, setup.light_arc_axis)?;
     let mount = LaserMount {
         elevation_deg: first
             .meta

@@ -87,12 +87,11 @@ pub struct LineDetection {
     pub threshold: f64,
 }
 
-/// Noise σ of an image from the median absolute difference of horizontal neighbours (robust
+/// Noise σ of a row-major image `width` wide from the median absolute difference of horizontal neighbours (robust
 /// to the line and to edges, which touch few pixels): σ = 1.4826 · MAD / √2.
-pub fn noise_sigma(image: &GrayImage) -> f64 {
-    let diffs = image
-        .data
-        .chunks_exact(image.width.max(1))
+pub fn noise_sigma(data: &[f32], width: usize) -> f64 {
+    let diffs = data
+        .chunks_exact(width.max(1))
         .flat_map(|row| row.windows(2).map(|w| (w[1] - w[0]).abs()));
     median_of(diffs) * 1.4826 / std::f64::consts::SQRT_2
 }
@@ -158,7 +157,7 @@ pub fn detect_line(
         image.clone()
     };
     let background = median_of(image.data.iter().copied());
-    let noise = noise_sigma(image);
+    let noise = noise_sigma(&image.data, image.width);
     // At least a hundredth of a unit, so a noise-free frame still needs the line to show.
     let threshold = (options.threshold_sigmas * noise * smoothing_gain(options.smoothing_px))
         .max(1e-2 * (1.0 + background.abs()));

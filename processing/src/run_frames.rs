@@ -136,6 +136,28 @@ pub fn decode_bracket(
         .collect()
 }
 
+/// An axis angle a frame records, degrees: 0 when the rig has no such axis (`None`); an error
+/// naming the frame when the rig has it but the frame does not record it.
+pub fn axis_angle(
+    run: &Path,
+    meta: &FrameMeta,
+    path: &str,
+    axis: Option<&str>,
+) -> Result<f64, ProcessingError> {
+    let Some(axis) = axis else { return Ok(0.0) };
+    meta.axes_deg
+        .get(axis)
+        .copied()
+        .filter(|a| a.is_finite())
+        .ok_or_else(|| ProcessingError::Dataset {
+            run: run.display().to_string(),
+            message: format!(
+                "frame {path} (step {}, camera {}) records no angle of axis `{axis}`",
+                meta.step, meta.camera
+            ),
+        })
+}
+
 /// The black level of a capture in DN: from the frame notes of a simulated camera
 /// (`black_level_dn`), else 0 (a real camera's offset is then absorbed by the response).
 pub fn black_level_dn(meta: &FrameMeta) -> f64 {

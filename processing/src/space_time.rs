@@ -10,7 +10,6 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::ProcessingError;
-use crate::gray_image::GrayImage;
 use crate::laser_line::noise_sigma;
 
 /// The time a pixel without a measured peak gets.
@@ -137,12 +136,7 @@ impl SpaceTime {
             }
             *prev = v;
         }
-        let image = GrayImage {
-            width: self.width,
-            height: self.height,
-            data: frame.to_vec(),
-        };
-        self.noises.push(noise_sigma(&image));
+        self.noises.push(noise_sigma(frame, self.width));
         self.frames += 1;
         Ok(())
     }

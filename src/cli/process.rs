@@ -243,7 +243,10 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
             let reader = open_run(&args.run_dir).map_err(processing_err)?;
             let keys = bracket_keys(&reader, |m| cameras.is_none_or(|c| c.contains(&m.camera)))
                 .map_err(processing_err)?;
-            Some(btf_layout(&keys, geometry, &lamps, &axes).map_err(processing_err)?)
+            Some(
+                btf_layout(&args.run_dir, &keys, geometry, &lamps, &axes)
+                    .map_err(processing_err)?,
+            )
         }
         _ => None,
     };
