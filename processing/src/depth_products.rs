@@ -7,8 +7,9 @@
 //! `T`, the peak time in frames (−1 where unknown). The sweep's frames stream through one at
 //! a time; sweeps run on every core.
 //!
-//! This is the depth of one laser direction. The merge over directions (seed eqs 4.44–4.45)
-//! and the laser-plane calibration are still to come: the sheets are the rig file's.
+//! The sheets are a laser-planes calibration's ([`crate::laser_planes`]) when one is given,
+//! else the rig file's ([`crate::laser_sheet`]). This is the depth of one laser direction; the
+//! merge over directions (seed eqs 4.44–4.45) is still to come.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -16,22 +17,20 @@ use std::path::Path;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
+use stagehand_dataset::StoredFrame;
 use stagehand_dataset::exr_planes::encode_exr_planes;
 use stagehand_dataset::products::{NewProduct, ProductStore};
-use stagehand_dataset::{FrameKind, FrameQuery, StoredFrame};
 
 use crate::calibrate_geometry::CameraGeometry;
 use crate::error::ProcessingError;
 use crate::gray_image::GrayImage;
 use crate::laser_line::{LineOptions, ScanAxis, detect_line};
-use crate::laser_sheet::{LaserMount, nominal_sheet};
+use crate::laser_planes::{LaserPlanes, PLANES_FIXTURE};
+use crate::laser_sheet::{LaserMount, laser_channel, nominal_sheet, scan_axis};
 use crate::ray_plane::{NO_DEPTH, depth_map, ray_distance};
 use crate::rig_frame::sample_to_camera;
-use crate::run_frames::{axis_angle, dataset_err, decode_frame_in, open_run};
+use crate::run_frames::{axis_angle, channel_image, dataset_err, decode_frame_in, raw_frames};
 use crate::space_time::{NO_TIME, SpaceTime, SpaceTimeOptions};
-
-/// The fixture of the laser-plane calibration frames, which are not sweeps of the sample.
-pub const PLANES_FIXTURE: &str = "planes";
 
 /// How a sweep becomes depth.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -66,6 +65,8 @@ pub struct DepthSetup<'a> {
     pub light_arc_axis: Option<&'a str>,
     /// Space-time settings.
     pub options: SpaceTimeOptions,
+    /// The calibrated laser sheets and their calibration's id (`None`: the rig file's).
+    pub laser_planes: Option<(&'a LaserPlanes, &'a str)>,
     /// Only these cameras' sweeps (`None`: every camera's).
     pub cameras: Option<&'a [String]>,
     /// Space-time analysis, or the per-frame baseline.
@@ -99,15 +100,8 @@ pub struct DepthSummary {
 /// Every sweep of the run: raw frames with the laser on and not of the planes fixture,
 /// grouped by block and camera; sweeps of fewer than 3 frames are left out.
 pub fn sweeps(run_dir: &Path) -> Result<Vec<Sweep>, ProcessingError> {
-    let reader = open_run(run_dir)?;
-    let page = reader
-        .frames(&FrameQuery {
-            kind: Some(FrameKind::Raw),
-            ..FrameQuery::default()
-        })
-        .map_err(dataset_err(run_dir))?;
     let mut groups: BTreeMap<(String, String), Vec<StoredFrame>> = BTreeMap::new();
-    for f in page.frames {
+    for f in raw_frames(run_dir)? {
         if f.meta.laser_on && f.meta.fixture != PLANES_FIXTURE {
             groups
                 .entry((f.meta.block.clone(), f.meta.camera.clone()))
@@ -127,16 +121,6 @@ pub fn sweeps(run_dir: &Path) -> Result<Vec<Sweep>, ProcessingError> {
             }
         })
         .collect())
-}
-
-/// The RGB channel that sees a laser of `nm` best (the simulated cameras' anchors: 473 nm
-/// blue, 532 green, 650 red).
-pub fn laser_channel(nm: u32) -> usize {
-    match nm {
-        0..=500 => 2,
-        501..=600 => 1,
-        _ => 0,
-    }
 }
 
 /// Writes the depth image of every sweep of the run in `store`; `progress(done, total)`
@@ -176,12 +160,14 @@ pub fn depth_products(
             key: format!("{kind}/s{first:06}/{}", sweep.camera),
             file_name: format!("s{first:06}_{}.exr", sweep.camera),
             inputs: sweep.frames.iter().map(|f| f.path.clone()).collect(),
-            calibrations: vec![geometry_id.to_string()],
+            calibrations: std::iter::once(geometry_id.to_string())
+                .chain(setup.laser_planes.map(|(_, id)| id.to_string()))
+                .collect(),
             software: software.to_string(),
             parameters: json!({
                 "threshold_sigmas": setup.options.threshold_sigmas,
                 "laser_distance_mm": setup.laser_distance_mm,
-                "sheets": "nominal (rig file)",
+                "sheets": setup.laser_planes.map_or("nominal (rig file)", |(_, id)| id),
                 "distance": "along the unit pixel ray from the camera centre, mm; -1 unknown",
             }),
         };
@@ -257,8 +243,26 @@ fn one_sweep(
             })?,
         distance_mm: setup.laser_distance_mm,
     };
+    let colour = first.meta.laser_colour_nm;
+    if let Some((planes, id)) = setup.laser_planes
+        && planes.position(colour, mount.elevation_deg, arc).is_none()
+    {
+        {
+            return Err(ProcessingError::CalibrationMismatch {
+                id: id.to_string(),
+                why: format!(
+                    "it has no laser position {colour} nm at {}° elevation and light arc {arc}° for the sweep of camera `{}` in block `{}`; calibrate this run's laser positions with `stagehand calibrate laser-planes`, or leave the calibration out to use the rig file's sheets",
+                    mount.elevation_deg, sweep.camera, sweep.block
+                ),
+            });
+        }
+    }
+    let sheet_at = |tilt: f64| match setup.laser_planes {
+        Some((planes, _)) => planes.sheet(colour, mount.elevation_deg, arc, tilt, table),
+        None => nominal_sheet(&mount, arc, tilt, table),
+    };
     let pose = sample_to_camera(&geometry.rig_to_camera, table);
-    let mut per_frame = PerFrame::new(w, h, scan_axis(geometry, &pose, arc, table));
+    let mut per_frame = PerFrame::new(w, h, scan_axis(&geometry.model, &pose, arc, table));
     let mut tilts = Vec::with_capacity(sweep.frames.len());
     for (k, f) in sweep.frames.iter().enumerate() {
         let png = decode_frame_in(run_dir, f)?;
@@ -271,11 +275,7 @@ fn one_sweep(
                 ),
             });
         }
-        let plane: Vec<f32> = png
-            .pixels
-            .chunks_exact(3)
-            .map(|px| f32::from(px[channel]))
-            .collect();
+        let image = channel_image(&png, channel);
         let tilt = f
             .meta
             .laser_tilt_deg
@@ -288,18 +288,13 @@ fn one_sweep(
             })?;
         tilts.push(tilt);
         match st.as_mut() {
-            Some(st) => st.push(&plane)?,
+            Some(st) => st.push(&image.data)?,
             None => {
-                let image = GrayImage {
-                    width: w,
-                    height: h,
-                    data: plane,
-                };
                 let options = LineOptions {
                     saturation: Some(saturation),
                     ..LineOptions::default()
                 };
-                let sheet = nominal_sheet(&mount, arc, tilt, table);
+                let sheet = sheet_at(tilt);
                 per_frame.add(&image, &options, k, |u, v| {
                     sheet.and_then(|s| ray_distance(&geometry.model, &pose, (u, v), &s))
                 })?;
@@ -316,8 +311,7 @@ fn one_sweep(
                 }
                 let k = (t.floor() as usize).min(tilts.len() - 2);
                 let frac = t - k as f64;
-                let tilt = tilts[k] + (tilts[k + 1] - tilts[k]) * frac;
-                nominal_sheet(&mount, arc, tilt, table)
+                sheet_at(tilts[k] + (tilts[k + 1] - tilts[k]) * frac)
             });
             (depth, times.time)
         }
@@ -350,24 +344,6 @@ fn one_sweep(
     )
     .map_err(dataset_err(run_dir))?;
     Ok((bytes, known, w * h))
-}
-
-/// Which way to scan a camera's image across the line: along the image axis the laser's fan
-/// (the arc's horizontal tangent) runs least along.
-fn scan_axis(
-    geometry: &CameraGeometry,
-    pose: &crate::camera_model::Pose,
-    arc: f64,
-    table: f64,
-) -> ScanAxis {
-    let (a, t) = (arc.to_radians(), -table.to_radians());
-    let fan = nalgebra::Vector3::new(-(a + t).sin(), (a + t).cos(), 0.0) * 10.0;
-    let origin = geometry.model.project(pose, &nalgebra::Vector3::zeros());
-    let along = geometry.model.project(pose, &fan);
-    match (origin, along) {
-        (Some(o), Some(p)) if (p.y - o.y).abs() > (p.x - o.x).abs() => ScanAxis::Rows,
-        _ => ScanAxis::Columns,
-    }
 }
 
 /// The per-frame baseline's image: at each pixel the depth of the brightest line point that

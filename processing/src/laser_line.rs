@@ -202,7 +202,10 @@ pub fn detect_line(
             while hi + 1 < length && saturated_at(hi + 1) {
                 hi += 1;
             }
-            0.5 * (lo + hi) as f64
+            let raw: Vec<f64> = (0..length)
+                .map(|i| f64::from(image.data[index(line, i)]) - background)
+                .collect();
+            saturated_centre(&raw, lo, hi)
         } else {
             match sub_pixel(&profile, peak, options.method) {
                 Some(a) => a,
@@ -222,6 +225,40 @@ pub fn detect_line(
         noise,
         threshold,
     })
+}
+
+/// The centre of a line clipped over samples `lo..=hi` of the raw profile `p` (background
+/// removed, not smoothed, so its flanks are the line's own): midway
+/// between where its flanks cross half the clipped height, interpolated between samples, so
+/// a symmetric line is placed to a fraction of a pixel however wide its plateau; the middle
+/// of the plateau when a flank runs off the image.
+fn saturated_centre(p: &[f64], lo: usize, hi: usize) -> f64 {
+    let level = 0.5 * p[lo..=hi].iter().copied().fold(f64::INFINITY, f64::min);
+    let middle = 0.5 * (lo + hi) as f64;
+    if !(level.is_finite() && level > 0.0) {
+        return middle;
+    }
+    // Where the flank crosses `level` between samples valued `a` (below) and `b` (above),
+    // as a fraction of the step from `a`: in logarithms, in which a Gaussian tail is nearly
+    // straight, when both are positive.
+    let cross = |a: f64, b: f64| {
+        if a > 0.0 {
+            (level.ln() - a.ln()) / (b.ln() - a.ln())
+        } else {
+            (level - a) / (b - a)
+        }
+    };
+    let left = (1..=lo)
+        .rev()
+        .find(|&i| p[i - 1] < level)
+        .map(|i| (i - 1) as f64 + cross(p[i - 1], p[i]));
+    let right = (hi..p.len() - 1)
+        .find(|&i| p[i + 1] < level)
+        .map(|i| (i + 1) as f64 - cross(p[i + 1], p[i]));
+    match (left, right) {
+        (Some(l), Some(r)) if (l + r).is_finite() => 0.5 * (l + r),
+        _ => middle,
+    }
 }
 
 /// The peak of `p` (background removed) about its maximum at `k`, by `method`; `None` at

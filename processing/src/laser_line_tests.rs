@@ -138,7 +138,7 @@ fn the_threshold_follows_the_frames_noise() {
 }
 
 #[test]
-fn a_saturated_line_peaks_at_the_middle_of_its_plateau() {
+fn a_saturated_line_peaks_between_the_flanks_of_its_plateau() {
     let truth = (30.4, -0.021);
     // Ten times the sensor's range: a plateau several pixels wide.
     let image = frame(80, 60, truth, 2.0, 40_000.0, 5.0, 4095.0);
@@ -148,11 +148,16 @@ fn a_saturated_line_peaks_at_the_middle_of_its_plateau() {
     };
     let found = detect_line(&image, ScanAxis::Columns, &options).unwrap();
     assert_eq!(found.points.len(), 80);
+    let mut worst: f64 = 0.0;
     for p in &found.points {
         assert!(p.saturated);
         let err = p.across - (truth.0 + truth.1 * p.along as f64);
-        assert!(err.abs() <= 0.5, "column {}: {err}", p.along);
+        worst = worst.max(err.abs());
     }
+    // The plateau's middle alone is off by up to half a pixel; its flanks place the line to
+    // a small fraction of one (measured: 0.034 px, the curvature of the Gaussian's log between
+    // samples).
+    assert!(worst < 0.05, "{worst}");
 }
 
 #[test]

@@ -9,6 +9,8 @@
 use nalgebra::{Rotation3, Unit, Vector3};
 use serde::{Deserialize, Serialize};
 
+use crate::camera_model::{CameraModel, Pose};
+use crate::laser_line::ScanAxis;
 use crate::ray_plane::Plane;
 
 /// Where the laser unit is mounted on the light arc.
@@ -37,6 +39,29 @@ pub fn nominal_sheet(
     let normal = centre.cross(&tangent).try_normalize(1e-12)?;
     let to_sample = Rotation3::from_axis_angle(&Vector3::z_axis(), -turntable_deg.to_radians());
     Plane::through((to_sample * origin).into(), (to_sample * normal).into())
+}
+
+/// The RGB channel that sees a laser of `nm` best (the simulated cameras' anchors: 473 nm
+/// blue, 532 green, 650 red).
+pub fn laser_channel(nm: u32) -> usize {
+    match nm {
+        0..=500 => 2,
+        501..=600 => 1,
+        _ => 0,
+    }
+}
+
+/// Which way to scan a camera's image across the line: along the image axis the laser's fan
+/// (the arc's horizontal tangent) runs least along.
+pub fn scan_axis(model: &CameraModel, pose: &Pose, arc: f64, table: f64) -> ScanAxis {
+    let (a, t) = (arc.to_radians(), -table.to_radians());
+    let fan = nalgebra::Vector3::new(-(a + t).sin(), (a + t).cos(), 0.0) * 10.0;
+    let origin = model.project(pose, &nalgebra::Vector3::zeros());
+    let along = model.project(pose, &fan);
+    match (origin, along) {
+        (Some(o), Some(p)) if (p.y - o.y).abs() > (p.x - o.x).abs() => ScanAxis::Rows,
+        _ => ScanAxis::Columns,
+    }
 }
 
 #[cfg(test)]

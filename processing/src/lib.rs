@@ -22,6 +22,8 @@
 //! | [`laser_line`] | a laser line in a frame: noise-derived threshold, sub-pixel peak |
 //! | [`space_time`] | a laser sweep's per-pixel peak times (Curless–Levoy), streamed |
 //! | [`laser_sheet`] | a sweep frame's laser sheet as the rig file places the laser |
+//! | [`laser_planes`] | calibrated laser sheets per laser position, and the pencil a sweep turns in |
+//! | [`laser_plane_calibration`] | each laser position's sheet measured on the two-height planes fixture |
 //! | [`ray_plane`] | laser triangulation: a pixel's ray against the sheet that lit it |
 //! | [`white_balance`] | joint camera+lamp channel scales from the colour checker |
 //! | [`chart_layout`] | the colour checker's physical layout on the turntable |
@@ -55,6 +57,8 @@ pub mod gray_image;
 pub mod hdr_frame;
 pub mod homography;
 pub mod laser_line;
+pub mod laser_plane_calibration;
+pub mod laser_planes;
 pub mod laser_sheet;
 pub mod nominal_geometry;
 pub mod ray_plane;

@@ -32,6 +32,20 @@ impl Plane {
     }
 }
 
+/// Pixel `(u, v)`'s ray (pixel centres at integers) in the sample frame: the camera centre
+/// and the unit direction; `None` when the pixel cannot be undistorted.
+pub fn pixel_ray(
+    camera: &CameraModel,
+    pose: &Pose,
+    (u, v): (f64, f64),
+) -> Option<(Vector3<f64>, Vector3<f64>)> {
+    let (x, y) = camera.normalise(u, v)?;
+    let r = pose.rotation_matrix();
+    let centre = -(r.transpose() * Vector3::from(pose.translation));
+    let dir = (r.transpose() * Vector3::new(x, y, 1.0)).normalize();
+    Some((centre, dir))
+}
+
 /// The distance along pixel `(u, v)`'s unit ray (pixel centres at integers) from the camera
 /// centre to `plane`; `None` when the pixel cannot be undistorted, or the ray runs parallel
 /// to the plane (within 0.1°) or meets it behind the camera.
@@ -41,11 +55,7 @@ pub fn ray_distance(
     (u, v): (f64, f64),
     plane: &Plane,
 ) -> Option<f64> {
-    let (x, y) = camera.normalise(u, v)?;
-    let r = pose.rotation_matrix();
-    // Camera centre and ray direction in the sample frame.
-    let centre = -(r.transpose() * Vector3::from(pose.translation));
-    let dir = (r.transpose() * Vector3::new(x, y, 1.0)).normalize();
+    let (centre, dir) = pixel_ray(camera, pose, (u, v))?;
     let n = Vector3::from(plane.normal);
     let along = n.dot(&dir);
     if along.abs() < 0.1f64.to_radians().sin() {

@@ -81,6 +81,30 @@ pub fn bracket_keys(
         .collect())
 }
 
+/// Every raw frame of the run at `run_dir`, in index order.
+pub fn raw_frames(run_dir: &Path) -> Result<Vec<StoredFrame>, ProcessingError> {
+    let page = open_run(run_dir)?
+        .frames(&FrameQuery {
+            kind: Some(FrameKind::Raw),
+            ..FrameQuery::default()
+        })
+        .map_err(dataset_err(run_dir))?;
+    Ok(page.frames)
+}
+
+/// One colour channel (0 red, 1 green, 2 blue) of a decoded RGB frame, in DN.
+pub fn channel_image(png: &DecodedPng, channel: usize) -> crate::gray_image::GrayImage {
+    crate::gray_image::GrayImage {
+        width: png.width as usize,
+        height: png.height as usize,
+        data: png
+            .pixels
+            .chunks_exact(3)
+            .map(|px| f32::from(px[channel]))
+            .collect(),
+    }
+}
+
 /// Decodes one raw frame, naming it (and what to do) when it cannot be read.
 pub fn decode_frame(reader: &RunReader, f: &StoredFrame) -> Result<DecodedPng, ProcessingError> {
     decode_frame_in(reader.dir(), f)

@@ -121,6 +121,33 @@ impl CameraAsBuilt {
     }
 }
 
+/// The laser unit's deviations on one mount: set on the light arc a little off the marked
+/// elevation and the arc's azimuth, with the tilt axis's zero off, and rolled about its
+/// untilted central ray (tilt axis and fan together). What a laser-plane calibration finds.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LaserAsBuilt {
+    /// Added to the mount's elevation, degrees.
+    pub elevation_deg: f64,
+    /// Added to the light arc's azimuth, degrees.
+    pub azimuth_deg: f64,
+    /// Added to the tilt axis's angle, degrees.
+    pub tilt_zero_deg: f64,
+    /// Roll of the unit about its central ray, degrees.
+    pub roll_deg: f64,
+}
+
+impl LaserAsBuilt {
+    /// The unit exactly where the script puts it.
+    pub fn nominal() -> LaserAsBuilt {
+        LaserAsBuilt {
+            elevation_deg: 0.0,
+            azimuth_deg: 0.0,
+            tilt_zero_deg: 0.0,
+            roll_deg: 0.0,
+        }
+    }
+}
+
 /// One lamp's deviations.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct LampAsBuilt {
@@ -251,6 +278,23 @@ impl AsBuilt {
             .unwrap_or_else(CameraAsBuilt::nominal)
     }
 
+    /// The laser unit's deviations when mounted at `elevation_deg` on the arc: drawn per
+    /// mount (each remount sits differently; the same mount, the same draw), nominal for the
+    /// nominal rig. Elevation ±0.5°, azimuth ±0.5°, tilt zero ±0.3°, roll ±1°.
+    pub fn laser(&self, elevation_deg: f64) -> LaserAsBuilt {
+        let Some(spec) = self.spec else {
+            return LaserAsBuilt::nominal();
+        };
+        let id = format!("laser@{:.2}", elevation_deg);
+        let d = |k, lo, hi| draw(spec.seed, &id, k, lo, hi);
+        LaserAsBuilt {
+            elevation_deg: d(40, -0.5, 0.5),
+            azimuth_deg: d(41, -0.5, 0.5),
+            tilt_zero_deg: d(42, -0.3, 0.3),
+            roll_deg: d(43, -1.0, 1.0),
+        }
+    }
+
     /// The deviations of lamp `id` (nominal for an unknown id).
     pub fn lamp(&self, id: &str) -> LampAsBuilt {
         self.lamps.get(id).copied().unwrap_or(LampAsBuilt {
@@ -285,6 +329,7 @@ impl AsBuilt {
             "spec": self.spec,
             "cameras": cameras,
             "lamps": self.lamps,
+            "laser": "drawn per mount elevation from spec.seed: AsBuilt::laser",
         })
     }
 }

@@ -50,6 +50,9 @@ pub enum CalibrateCommand {
     /// checker under each lamp (sequences/calibration_colorchecker.rhai), in the units of a
     /// response calibration.
     Colour(super::calibrate_colour::ColourArgs),
+    /// Each laser position's sheet from the two-height planes fixture under the laser
+    /// (sequences/mdf_laser.rhai's calibration frames), through a geometry calibration.
+    LaserPlanes(super::calibrate_laser_planes::LaserPlanesArgs),
 }
 
 /// Subcommands of `stagehand calibrations`.
@@ -84,6 +87,21 @@ pub(super) fn processing_err(e: stagehand_processing::ProcessingError) -> Sessio
 /// The calibrations directory for a run: beside it, in its dataset root.
 pub(super) fn root_of(run_dir: &Path) -> PathBuf {
     calibrations_dir(run_dir.parent().unwrap_or(Path::new(".")))
+}
+
+/// A run's manifest and the rig file it was captured with.
+pub(super) fn run_rig(
+    run_dir: &Path,
+) -> Result<(stagehand_dataset::Manifest, stagehand_devices::rig::RigSpec), SessionError> {
+    let manifest = stagehand_dataset::read_manifest(run_dir).map_err(SessionError::Storage)?;
+    let rig = stagehand_devices::rig::parse_rig(
+        &manifest.rig_toml,
+        &run_dir
+            .join(stagehand_dataset::layout::RIG)
+            .display()
+            .to_string(),
+    )?;
+    Ok((manifest, rig))
 }
 
 /// The run's id: its directory name.
@@ -153,6 +171,7 @@ pub fn calibrate(command: CalibrateCommand) -> Result<i32, SessionError> {
             Ok(0)
         }
         CalibrateCommand::Colour(args) => super::calibrate_colour::run(args),
+        CalibrateCommand::LaserPlanes(args) => super::calibrate_laser_planes::run(args),
     }
 }
 

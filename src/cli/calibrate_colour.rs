@@ -9,7 +9,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
 
 use clap::Args;
-use stagehand_devices::rig::{AxisRole, RigSpec, parse_rig};
+use stagehand_devices::rig::{AxisRole, RigSpec};
 use stagehand_processing::calibrate_geometry::CameraGeometry;
 use stagehand_processing::calibration_store::{
     self, Calibration, CalibrationInput, CalibrationKind, StoredCalibration,
@@ -21,7 +21,7 @@ use stagehand_processing::nominal_geometry::{NominalCamera, nominal_geometry};
 use stagehand_processing::response_calibration::ResponseSet;
 use stagehand_processing::{Distortion, ProcessingError};
 
-use super::calibrate::{processing_err, root_of, run_id, store_err};
+use super::calibrate::{processing_err, root_of, run_id, run_rig, store_err};
 use crate::session::SessionError;
 
 /// Arguments of `stagehand calibrate colour`.
@@ -94,14 +94,7 @@ fn geometry(
 /// Runs `stagehand calibrate colour`.
 pub fn run(args: ColourArgs) -> Result<i32, SessionError> {
     let run_dir = &args.run_dir;
-    let manifest = stagehand_dataset::read_manifest(run_dir).map_err(SessionError::Storage)?;
-    let rig = parse_rig(
-        &manifest.rig_toml,
-        &run_dir
-            .join(stagehand_dataset::layout::RIG)
-            .display()
-            .to_string(),
-    )?;
+    let (manifest, rig) = run_rig(run_dir)?;
     let cameras: Vec<String> = rig.cameras.iter().map(|c| c.id.clone()).collect();
     let root = root_of(run_dir);
     let response = calibration_store::load(&root, &args.response).map_err(store_err)?;

@@ -3,6 +3,7 @@
 mod calibrate;
 mod calibrate_colour;
 mod calibrate_geometry;
+mod calibrate_laser_planes;
 mod devices;
 mod operator;
 mod process;

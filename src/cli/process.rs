@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use stagehand_dataset::products::ProductStore;
-use stagehand_devices::rig::{AxisRole, LampKind, parse_rig};
+use stagehand_devices::rig::{AxisRole, LampKind};
 use stagehand_processing::btf_layout::{BtfAxes, LampPlacement, btf_layout};
 use stagehand_processing::calibrate_geometry::CameraGeometry;
 use stagehand_processing::calibration_store::{self, CalibrationKind};
@@ -19,12 +19,14 @@ use stagehand_processing::capture_products::{
 use stagehand_processing::colour_calibration::ColourSet;
 use stagehand_processing::depth_products::{DepthMethod, DepthSetup, DepthSummary, depth_products};
 use stagehand_processing::hdr_frame::MergeWeight;
+use stagehand_processing::laser_plane_calibration::LaserPlanesResult;
+use stagehand_processing::laser_planes::LaserPlanes;
 use stagehand_processing::rectify::RectifyGrid;
 use stagehand_processing::response_calibration::ResponseSet;
 use stagehand_processing::run_frames::{bracket_keys, open_run};
 use stagehand_processing::space_time::SpaceTimeOptions;
 
-use super::calibrate::{processing_err, root_of, store_err};
+use super::calibrate::{processing_err, root_of, run_rig, store_err};
 use crate::session::SessionError;
 
 /// The products `process` can make.
@@ -40,8 +42,9 @@ pub enum Product {
     /// rgb]` and `seen [view, y, x]`, views and lights in sample-frame angles.
     Btf,
     /// A depth image per laser sweep and camera (OpenEXR `D`: distance along the pixel's ray,
-    /// mm, −1 unknown; `T`: peak time in frames), by space-time analysis against the rig
-    /// file's laser sheets, through the geometric calibration. Needs no response calibration.
+    /// mm, −1 unknown; `T`: peak time in frames), by space-time analysis against the laser
+    /// sheets of a `laser-planes-…` calibration (else the rig file's), through the geometric
+    /// calibration. Needs no response calibration.
     Depth,
 }
 
@@ -63,7 +66,8 @@ pub struct ProcessArgs {
     #[arg(long, value_enum, value_delimiter = ',', default_value = "hdr")]
     pub products: Vec<Product>,
     /// A calibration to use, by id (repeatable): one `response-…`, optionally one `colour-…`,
-    /// and for `rectified` and `btf` one `geometry-…`, from `calibrations/` beside the run.
+    /// for `rectified`, `btf` and `depth` one `geometry-…`, and for `depth` optionally one
+    /// `laser-planes-…`, from `calibrations/` beside the run.
     /// Default: those the run's rig file named (`[calibration]`, recorded in its manifest).
     #[arg(long = "calibration")]
     pub calibrations: Vec<String>,
@@ -97,6 +101,7 @@ struct Calibrations {
     response: Option<(ResponseSet, String)>,
     colour: Option<(ColourSet, String)>,
     geometry: Option<(BTreeMap<String, CameraGeometry>, String)>,
+    laser_planes: Option<(LaserPlanes, String)>,
 }
 
 /// Loads calibrations `ids`, at most one of each kind.
@@ -130,11 +135,10 @@ fn load_calibrations(root: &std::path::Path, ids: &[String]) -> Result<Calibrati
                     .collect();
                 found.geometry = Some((cameras, stored.id.clone()));
             }
-            other => {
-                return Err(SessionError::Io(format!(
-                    "--calibration {id}: processing does not use a {} calibration; give a response, optionally a colour, and for rectified images a geometry calibration",
-                    other.as_str()
-                )));
+            CalibrationKind::LaserPlanes if found.laser_planes.is_some() => return Err(twice()),
+            CalibrationKind::LaserPlanes => {
+                let planes: LaserPlanesResult = stored.result(kind).map_err(store_err)?;
+                found.laser_planes = Some((planes.planes, stored.id.clone()));
             }
         }
     }
@@ -144,13 +148,17 @@ fn load_calibrations(root: &std::path::Path, ids: &[String]) -> Result<Calibrati
 /// Runs `stagehand process`.
 pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
     let root = root_of(&args.run_dir);
-    let manifest =
-        stagehand_dataset::read_manifest(&args.run_dir).map_err(SessionError::Storage)?;
+    let (manifest, rig) = run_rig(&args.run_dir)?;
     let ids: Vec<String> = if args.calibrations.is_empty() {
         manifest
             .calibrations
             .iter()
-            .filter(|(kind, _)| matches!(kind.as_str(), "response" | "colour" | "geometry"))
+            .filter(|(kind, _)| {
+                matches!(
+                    kind.as_str(),
+                    "response" | "colour" | "geometry" | "laser-planes"
+                )
+            })
             .map(|(_, id)| id.clone())
             .collect()
     } else {
@@ -165,14 +173,6 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
         ));
     }
     let rectifying = want(Product::Rectified) || want(Product::Btf);
-    let rig = parse_rig(
-        &manifest.rig_toml,
-        &args
-            .run_dir
-            .join(stagehand_dataset::layout::RIG)
-            .display()
-            .to_string(),
-    )?;
     let cameras = (!args.cameras.is_empty()).then_some(args.cameras.as_slice());
     if let Some(unknown) = args.cameras.iter().find(|c| rig.camera(c).is_none()) {
         return Err(SessionError::Io(format!(
@@ -295,6 +295,10 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
                 .axis_with_role(AxisRole::LightArc)
                 .map(|a| a.id.as_str()),
             options: SpaceTimeOptions::default(),
+            laser_planes: found
+                .laser_planes
+                .as_ref()
+                .map(|(planes, id)| (planes, id.as_str())),
             cameras,
             method: match args.depth_method {
                 DepthMethodArg::SpaceTime => DepthMethod::SpaceTime,

@@ -7,6 +7,7 @@ mod colour;
 mod depth;
 mod geometry;
 mod hdr;
+mod laser_planes;
 mod rectified;
 mod response;
 
@@ -19,6 +20,7 @@ pub use colour::{ColourFigures, LampFigures, evaluate_colour};
 pub use depth::{DepthFigures, evaluate_depth};
 pub use geometry::{CameraFigures, GeometryFigures, evaluate_geometry};
 pub use hdr::{ErrorFigures, HdrFigures, evaluate_hdr};
+pub use laser_planes::{LaserPlaneFigures, evaluate_laser_planes};
 pub use rectified::{RectifiedFigures, evaluate_rectified};
 pub use response::{ChannelFigures, ResponseFigures, evaluate_response};
 
@@ -46,6 +48,8 @@ pub struct Report {
     pub geometry: Vec<GeometryFigures>,
     /// Colour calibrations: scales per camera and lamp against the truth.
     pub colour: Vec<ColourFigures>,
+    /// Laser-planes calibrations: sheet angles and offsets against the laser as built.
+    pub laser_planes: Vec<LaserPlaneFigures>,
     /// The run's HDR products against its noise-free radiance (runs with ground truth).
     pub hdr: Option<HdrFigures>,
     /// The run's rectified images and BTF views against the true camera geometry.
@@ -101,6 +105,7 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
         response: Vec::new(),
         geometry: Vec::new(),
         colour: Vec::new(),
+        laser_planes: Vec::new(),
         hdr: None,
         rectified: None,
         depth: None,
@@ -116,7 +121,9 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
             CalibrationKind::Colour => report
                 .colour
                 .push(evaluate_colour(&stored, &truth, run_dir, &root)?),
-            _ => {}
+            CalibrationKind::LaserPlanes => report
+                .laser_planes
+                .push(evaluate_laser_planes(&stored, &truth, run_dir)?),
         }
     }
     report.hdr = evaluate_hdr(run_dir, &root)?;

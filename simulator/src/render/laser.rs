@@ -5,6 +5,7 @@ use glam::Vec3A;
 use stagehand_devices::rig::LaserSpec;
 
 use super::geometry::{ToSample, horizontal_tangent, rotate_about, spherical};
+use crate::as_built::LaserAsBuilt;
 use crate::world_snapshot::LaserBeam;
 
 /// Half of the fan's opening angle within the sheet.
@@ -22,7 +23,8 @@ pub struct LaserSheet {
     pub origin: Vec3A,
     /// Central ray direction (unit).
     pub centre: Vec3A,
-    /// Direction the fan spreads along (unit, horizontal in the world).
+    /// Direction the fan spreads along and the tilt axis (unit; horizontal in the world
+    /// unless the unit as built is rolled).
     pub fan_axis: Vec3A,
     /// Unit normal of the sheet plane.
     pub normal: Vec3A,
@@ -49,19 +51,47 @@ impl LaserSheet {
         light_arc_deg: f64,
         to_sample: ToSample,
     ) -> LaserSheet {
-        let origin = spherical(light_arc_deg, beam.mount_elevation_deg, spec.distance_mm);
-        let t = horizontal_tangent(light_arc_deg);
+        LaserSheet::built(
+            spec,
+            beam,
+            light_arc_deg,
+            to_sample,
+            &LaserAsBuilt::nominal(),
+        )
+    }
+
+    /// The sheet as [`LaserSheet::new`] places it, with the unit as built: its mount off the
+    /// marked elevation and the arc's azimuth, the tilt axis's zero off, and the whole unit
+    /// (tilt axis and fan) rolled about its untilted central ray.
+    pub fn built(
+        spec: &LaserSpec,
+        beam: &LaserBeam,
+        light_arc_deg: f64,
+        to_sample: ToSample,
+        built: &LaserAsBuilt,
+    ) -> LaserSheet {
+        let origin = spherical(
+            light_arc_deg + built.azimuth_deg,
+            beam.mount_elevation_deg + built.elevation_deg,
+            spec.distance_mm,
+        );
+        let aim = (-origin).normalize_or(-Vec3A::Z);
+        let t = rotate_about(
+            horizontal_tangent(light_arc_deg + built.azimuth_deg),
+            aim,
+            built.roll_deg.to_radians() as f32,
+        );
         let centre = rotate_about(
-            (-origin).normalize_or(-Vec3A::Z),
+            aim,
             t,
-            beam.tilt_deg.to_radians() as f32,
+            (beam.tilt_deg + built.tilt_zero_deg).to_radians() as f32,
         );
         let normal = centre.cross(t).normalize_or(Vec3A::X);
         let width = spec.sheet_half_width_mm as f32;
         let rgb = camera_response(beam.colour_nm);
         LaserSheet {
             origin: to_sample.point(origin),
-            centre: to_sample.point(centre),
+            centre: to_sample.dir(centre),
             fan_axis: to_sample.dir(t),
             normal: to_sample.dir(normal),
             half_width_mm: width,
@@ -196,6 +226,65 @@ mod tests {
         let s = LaserSheet::new(&spec(), &beam, 0.0, ToSample::new(0.0));
         let hit = s.centre_hit(0.0).expect("descends");
         assert!(hit.x < -20.0, "{hit}");
+    }
+
+    #[test]
+    fn a_unit_built_off_its_marks_moves_and_rolls_the_sheet() {
+        let beam = LaserBeam {
+            colour_nm: 650,
+            tilt_deg: 0.0,
+            mount_elevation_deg: 45.0,
+        };
+        let nominal = LaserSheet::new(&spec(), &beam, 0.0, ToSample::new(0.0));
+        let same = LaserSheet::built(
+            &spec(),
+            &beam,
+            0.0,
+            ToSample::new(0.0),
+            &LaserAsBuilt::nominal(),
+        );
+        assert_eq!(nominal, same);
+        let rolled = LaserSheet::built(
+            &spec(),
+            &beam,
+            0.0,
+            ToSample::new(0.0),
+            &LaserAsBuilt {
+                roll_deg: 1.0,
+                ..LaserAsBuilt::nominal()
+            },
+        );
+        // Rolled about the central ray: the line still crosses the origin, at 1°/sin 45° to y.
+        assert!(rolled.centre_hit(0.0).is_some_and(|p| p.length() < 1e-3));
+        let line = rolled.normal.cross(Vec3A::Z).normalize();
+        let angle = line.x.atan2(line.y).to_degrees().abs();
+        let expected = (1f32.to_radians().tan() / 45f32.to_radians().sin())
+            .atan()
+            .to_degrees();
+        assert!(
+            (angle.min(180.0 - angle) - expected).abs() < 0.01,
+            "{angle} vs {expected}"
+        );
+        let zero_off = LaserSheet::built(
+            &spec(),
+            &beam,
+            0.0,
+            ToSample::new(0.0),
+            &LaserAsBuilt {
+                tilt_zero_deg: 0.2,
+                ..LaserAsBuilt::nominal()
+            },
+        );
+        let tilted = LaserSheet::new(
+            &spec(),
+            &LaserBeam {
+                tilt_deg: 0.2,
+                ..beam
+            },
+            0.0,
+            ToSample::new(0.0),
+        );
+        assert!((zero_off.normal - tilted.normal).length() < 1e-6);
     }
 
     #[test]

@@ -292,7 +292,13 @@ impl Renderer {
                     .laser
                     .as_ref()
                     .ok_or_else(|| RenderError::NoLaser(self.rig.rig.name.clone()))?;
-                let sheet = LaserSheet::new(spec, beam, angles.light_arc_deg, to_sample);
+                let sheet = LaserSheet::built(
+                    spec,
+                    beam,
+                    angles.light_arc_deg,
+                    to_sample,
+                    &self.as_built.laser(beam.mount_elevation_deg),
+                );
                 Some((sheet, beam.tilt_deg, beam.colour_nm, spec.power_mw))
             }
         };

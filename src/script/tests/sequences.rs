@@ -140,9 +140,10 @@ fn btf_scaled() {
 fn mdf_defaults() {
     let p = sequence("mdf_laser.rhai", MDF, &lightstage(), &[]);
     let positions = 12 * 26;
-    assert_eq!(count(&p, "capture"), positions * (1 + 64));
-    assert_eq!(p.raw_frames(), positions * 65 * 8);
-    assert_eq!(p.steps.len(), 44_067);
+    // Three calibration frames per laser position, once for all 12 views.
+    assert_eq!(count(&p, "capture"), 26 * 3 + positions * 64);
+    assert_eq!(p.raw_frames(), (26 * 3 + positions * 64) * 8);
+    assert_eq!(p.steps.len(), 41_860);
     let remounts = p
         .steps
         .iter()
@@ -156,7 +157,21 @@ fn mdf_defaults() {
             )
         })
         .count();
-    assert_eq!(remounts, 12 * 5);
+    assert_eq!(remounts, 5);
+    let fixtures = p
+        .steps
+        .iter()
+        .filter(|s| {
+            matches!(
+                &s.action,
+                Action::Prompt {
+                    fixture: Some(_),
+                    ..
+                }
+            )
+        })
+        .count();
+    assert_eq!(fixtures, 5 * 2);
     // Every sweep capture is paced at 7.5 Hz.
     let paced = p
         .steps
@@ -175,11 +190,11 @@ fn mdf_scaled_splits_positions_over_mounts() {
         &lightstage(),
         &["views=1", "positions=7", "mounts=3", "lines=2"],
     );
-    assert_eq!(count(&p, "capture"), 7 * 3);
+    assert_eq!(count(&p, "capture"), 7 * 3 + 7 * 2);
     // 7 positions over 3 mounts: 3 + 2 + 2.
     let per_mount: Vec<usize> = (0..3)
         .map(|m| {
-            let prefix = format!("view 0/mount {m}/");
+            let prefix = format!("mount {m}/view 0/");
             let mut blocks: Vec<&str> = p
                 .steps
                 .iter()
