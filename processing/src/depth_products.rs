@@ -26,7 +26,9 @@ use crate::error::ProcessingError;
 use crate::gray_image::GrayImage;
 use crate::laser_line::{LineOptions, ScanAxis, detect_line};
 use crate::laser_planes::{LaserPlanes, PLANES_FIXTURE};
-use crate::laser_sheet::{LaserMount, laser_channel, nominal_sheet, scan_axis};
+use crate::laser_sheet::{
+    LaserMount, laser_channel, nominal_emitter, nominal_sheet, scan_axis, triangulation_volume,
+};
 use crate::ray_plane::{NO_DEPTH, depth_map, ray_distance};
 use crate::rig_frame::sample_to_camera;
 use crate::run_frames::{axis_angle, channel_image, dataset_err, decode_frame_in, raw_frames};
@@ -154,6 +156,12 @@ pub fn depth_products(
                     ),
                 })?;
         let first = sweep.frames[0].meta.step;
+        let table = axis_angle(
+            &run_dir,
+            &sweep.frames[0].meta,
+            &sweep.frames[0].path,
+            setup.turntable_axis,
+        )?;
         let kind = setup.method.kind();
         let new = NewProduct {
             kind: kind.into(),
@@ -169,6 +177,8 @@ pub fn depth_products(
                 "laser_distance_mm": setup.laser_distance_mm,
                 "sheets": setup.laser_planes.map_or("nominal (rig file)", |(_, id)| id),
                 "distance": "along the unit pixel ray from the camera centre, mm; -1 unknown",
+                "camera": sweep.camera,
+                "turntable_deg": table,
             }),
         };
         if store.is_current(&new).map_err(dataset_err(&run_dir))? {
@@ -323,8 +333,19 @@ fn one_sweep(
         samples.push(*d);
         samples.push(*t);
     }
+    let middle = tilts[tilts.len() / 2];
+    let nu = sheet_at(middle).map_or(0.0, |sheet| {
+        let to_sample =
+            nalgebra::Rotation3::from_axis_angle(&nalgebra::Vector3::z_axis(), -table.to_radians());
+        let emitter = to_sample * nominal_emitter(&mount, arc);
+        let r = pose.rotation_matrix();
+        let camera = -(r.transpose() * nalgebra::Vector3::from(pose.translation));
+        triangulation_volume(&emitter, &camera, &sheet)
+    });
     let metadata = json!({
         "camera": sweep.camera,
+        "first_frame": first.path,
+        "nu_mm3": nu,
         "block": sweep.block,
         "steps": [first.meta.step, sweep.frames[sweep.frames.len() - 1].meta.step],
         "turntable_deg": table,

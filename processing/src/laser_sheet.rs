@@ -31,8 +31,8 @@ pub fn nominal_sheet(
     tilt_deg: f64,
     turntable_deg: f64,
 ) -> Option<Plane> {
-    let (a, e) = (light_arc_deg.to_radians(), mount.elevation_deg.to_radians());
-    let origin = Vector3::new(e.cos() * a.cos(), e.cos() * a.sin(), e.sin()) * mount.distance_mm;
+    let a = light_arc_deg.to_radians();
+    let origin = nominal_emitter(mount, light_arc_deg);
     let tangent = Unit::new_normalize(Vector3::new(-a.sin(), a.cos(), 0.0));
     let aim = (-origin).try_normalize(1e-12)?;
     let centre = Rotation3::from_axis_angle(&tangent, tilt_deg.to_radians()) * aim;
@@ -64,6 +64,41 @@ pub fn scan_axis(model: &CameraModel, pose: &Pose, arc: f64, table: f64) -> Scan
     }
 }
 
+/// The emitter of `mount` with the light arc at `light_arc_deg`, rig frame (turntable 0°).
+pub fn nominal_emitter(mount: &LaserMount, light_arc_deg: f64) -> Vector3<f64> {
+    let (a, e) = (light_arc_deg.to_radians(), mount.elevation_deg.to_radians());
+    Vector3::new(e.cos() * a.cos(), e.cos() * a.sin(), e.sin()) * mount.distance_mm
+}
+
+/// Half the length of the laser line [`triangulation_volume`] takes through the turntable
+/// centre, mm.
+pub const VOLUME_LINE_HALF_MM: f64 = 50.0;
+
+/// ν of seed 004 eq. 4.45 (after Bouguet & Perona): the volume of the tetrahedron of the laser
+/// `emitter`, the `camera` centre and two points of the laser line through the turntable
+/// centre ([`VOLUME_LINE_HALF_MM`] either side of the point of `sheet` on the reference plane
+/// nearest the axis), all in one frame, mm³. Large when the camera sees the sheet broadside
+/// and far from the emitter (well-conditioned triangulation); zero when the camera lies in
+/// the sheet or the sheet is parallel to the reference plane.
+pub fn triangulation_volume(emitter: &Vector3<f64>, camera: &Vector3<f64>, sheet: &Plane) -> f64 {
+    let n = Vector3::from(sheet.normal);
+    let horizontal = n.x * n.x + n.y * n.y;
+    if horizontal < 1e-12 {
+        return 0.0;
+    }
+    let foot = Vector3::new(n.x, n.y, 0.0) * (sheet.d / horizontal);
+    let along = Vector3::new(-n.y, n.x, 0.0) / horizontal.sqrt();
+    let (b, c) = (
+        foot + along * VOLUME_LINE_HALF_MM,
+        foot - along * VOLUME_LINE_HALF_MM,
+    );
+    let volume = (b - emitter)
+        .dot(&(c - emitter).cross(&(camera - emitter)))
+        .abs()
+        / 6.0;
+    if volume.is_finite() { volume } else { 0.0 }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -90,6 +125,22 @@ mod tests {
         // The laser stands at +x: the line moves to −x, by about 1000·tan 2° / sin 45°.
         let x = crossing_x(&tilted);
         assert!(x < -40.0 && x > -60.0, "{x}");
+    }
+
+    #[test]
+    fn the_triangulation_volume_vanishes_for_a_camera_in_the_sheet() {
+        let sheet = nominal_sheet(&mount(), 0.0, 0.0, 0.0).unwrap();
+        let emitter = nominal_emitter(&mount(), 0.0);
+        // The sheet holds the central ray (x = z) and the fan (y): a camera in it sees it
+        // edge-on.
+        let edge_on = Vector3::new(300.0, 200.0, 300.0);
+        assert!(triangulation_volume(&emitter, &edge_on, &sheet) < 1e-6);
+        // One across the arc sees it broadside: 100 mm of line × the distances involved.
+        let broadside = Vector3::new(0.0, 800.0, 400.0);
+        let v = triangulation_volume(&emitter, &broadside, &sheet);
+        assert!(v > 1e6 && v.is_finite(), "{v}");
+        let flat = Plane::through([0.0; 3], [0.0, 0.0, 1.0]).unwrap();
+        assert_eq!(triangulation_volume(&emitter, &broadside, &flat), 0.0);
     }
 
     #[test]

@@ -32,6 +32,8 @@
 //! | [`nominal_geometry`] | a camera's geometry as the rig file describes it |
 //! | [`capture_products`] | `process`: captures merged once, written as HDR, rectified and BTF products |
 //! | [`depth_products`] | `process --products depth`: each laser sweep triangulated per camera |
+//! | [`mdf_merge`] | a view's depth images merged over laser directions, holes inpainted |
+//! | [`mdf_products`] | `process --products mdf`: each view's MDF, float and 8-bit |
 //! | [`run_frames`] | a run's raw brackets, listed and decoded one at a time |
 //! | [`calibration_store`] | calibrations as content-addressed, versioned artefacts |
 //! | [`zarr_array`] | Zarr v3 arrays described and encoded (uncompressed chunks) for the BTF |
@@ -60,6 +62,8 @@ pub mod laser_line;
 pub mod laser_plane_calibration;
 pub mod laser_planes;
 pub mod laser_sheet;
+pub mod mdf_merge;
+pub mod mdf_products;
 pub mod nominal_geometry;
 pub mod ray_plane;
 pub mod rectify;

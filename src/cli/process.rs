@@ -21,6 +21,8 @@ use stagehand_processing::depth_products::{DepthMethod, DepthSetup, DepthSummary
 use stagehand_processing::hdr_frame::MergeWeight;
 use stagehand_processing::laser_plane_calibration::LaserPlanesResult;
 use stagehand_processing::laser_planes::LaserPlanes;
+use stagehand_processing::mdf_merge::MergeOptions;
+use stagehand_processing::mdf_products::{MdfSetup, MdfSummary, mdf_products};
 use stagehand_processing::rectify::RectifyGrid;
 use stagehand_processing::response_calibration::ResponseSet;
 use stagehand_processing::run_frames::{bracket_keys, open_run};
@@ -46,6 +48,11 @@ pub enum Product {
     /// sheets of a `laser-planes-…` calibration (else the rig file's), through the geometric
     /// calibration. Needs no response calibration.
     Depth,
+    /// Each view's depth images (a camera at one turntable angle, one image per laser
+    /// direction) merged over the directions (seed eqs 4.44–4.45, with outlying directions
+    /// left out) into its MDF: OpenEXR `D`, `S` (2 measured, 1 inpainted, 0 none), `N`, `W`,
+    /// and an 8-bit PNG as the seed stores it. Makes the depth images first.
+    Mdf,
 }
 
 /// `--depth-method`.
@@ -187,13 +194,14 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
     let turntable = rig
         .axis_with_role(AxisRole::Turntable)
         .map(|a| a.id.clone());
-    let grid = if rectifying {
+    let mdf = want(Product::Mdf);
+    let grid = if rectifying || mdf {
         let size_mm = match (args.square_mm, manifest.sim.as_ref()) {
             (Some(mm), _) => mm,
             (None, Some(sim)) => sim.sample_size_mm,
             (None, None) => {
                 return Err(SessionError::Io(
-                    "rectified images and the BTF need the square of the reference plane to keep: give --square-mm (the sample's side in mm)".into(),
+                    "rectified images, the BTF and the MDF need the sample's square of the reference plane: give --square-mm (the sample's side in mm)".into(),
                 ));
             }
         };
@@ -211,7 +219,7 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
     } else {
         None
     };
-    let rectification = match (grid, &found.geometry) {
+    let rectification = match (grid.filter(|_| rectifying), &found.geometry) {
         (Some(grid), Some((cameras, id))) => Some(Rectification {
             geometry: (cameras, id.as_str()),
             grid,
@@ -275,7 +283,7 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
         .map_err(processing_err)?;
         bar.finish_and_clear();
     }
-    let depth = if want(Product::Depth) {
+    let depth = if want(Product::Depth) || mdf {
         let (geometry, geometry_id) = found.geometry.as_ref().ok_or_else(|| {
             SessionError::Io(
                 "depth needs a geometric calibration: --calibration geometry-…, or name one in the rig file's [calibration] table (make one with `stagehand calibrate geometry`)".into(),
@@ -316,6 +324,25 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
     } else {
         None
     };
+    let mdf = match (mdf, &found.geometry, grid) {
+        (true, Some((geometry, geometry_id)), Some(square)) => {
+            let setup = MdfSetup {
+                geometry: (geometry, geometry_id),
+                square,
+                merge: MergeOptions::default(),
+                cameras,
+            };
+            let bar = progress_bar("views");
+            let made = mdf_products(&mut store, setup, &software, &mut |done, total| {
+                bar.set_length(total as u64);
+                bar.set_position(done as u64);
+            })
+            .map_err(processing_err)?;
+            bar.finish_and_clear();
+            Some(made)
+        }
+        _ => None,
+    };
     let report = Report {
         summary,
         btf_layout: layout.as_ref().map(|l| BtfReport {
@@ -325,6 +352,7 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
             left_out: l.left_out.clone(),
         }),
         depth,
+        mdf,
     };
     if args.json {
         super::print_json(&report)?;
@@ -361,6 +389,7 @@ struct Report {
     summary: ProductSummary,
     btf_layout: Option<BtfReport>,
     depth: Option<DepthSummary>,
+    mdf: Option<MdfSummary>,
 }
 
 fn print_report(report: &Report, args: &ProcessArgs) {
@@ -406,6 +435,17 @@ fn print_report(report: &Report, args: &ProcessArgs) {
             d.written,
             d.skipped,
             100.0 * d.known_fraction
+        );
+    }
+    if let Some(m) = &report.mdf {
+        println!(
+            "mdf: {} views, {} written, {} already current; {:.2} % of the sample's pixels were holes (inpainted), {} conflicts, {} left unknown",
+            m.views,
+            m.written,
+            m.skipped,
+            100.0 * m.hole_fraction,
+            m.conflicts,
+            m.unfilled
         );
     }
     println!(

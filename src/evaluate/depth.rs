@@ -1,4 +1,5 @@
-//! Depth products against the simulator's ground-truth depth (runs with `[sim] ground_truth =
+//! Depth products (and merged MDFs, whose inpainted pixels are measured apart) against the
+//! simulator's ground-truth depth (runs with `[sim] ground_truth =
 //! true`): the truth is the distance along each pixel-centre ray to the first surface, the
 //! same convention the depth products keep, taken beside the sweep's first frame (a sweep's
 //! frames share the view). Compared where both know a depth; errors also in pixel footprints
@@ -32,6 +33,12 @@ pub struct DepthFigures {
     pub median_footprints: f64,
     /// Of the pixels whose ray meets a surface, the fraction with a depth.
     pub known_fraction: f64,
+    /// Merged MDFs: pixels filled by inpainting (not in the figures above) and their RMSE, mm.
+    pub inpainted_pixels: usize,
+    /// RMSE of the inpainted pixels, mm (0 when none).
+    pub inpainted_rmse_mm: f64,
+    /// Merged MDFs: the mean over views of the fraction of sample pixels that were holes.
+    pub hole_fraction: Option<f64>,
 }
 
 /// Evaluates the run's depth products of `kind` (`depth`, `depth_per_frame`), if it has any
@@ -58,8 +65,14 @@ pub fn evaluate_depth(
     let mut geometries: BTreeMap<String, BTreeMap<String, CameraGeometry>> = BTreeMap::new();
     let (mut errors, mut footprints) = (Vec::new(), Vec::new());
     let (mut hits, mut known, mut images) = (0usize, 0usize, 0usize);
+    let (mut inpainted, mut hole_fractions) = (Vec::new(), Vec::new());
     for p in &products {
-        let Some(truth_path) = p.made.inputs.first().and_then(|f| truth_rows.get(f)) else {
+        // A merged MDF names a frame of its view; a sweep's depth image is made from frames.
+        let frame = p.made.parameters["truth_frame"]
+            .as_str()
+            .map(str::to_string)
+            .or_else(|| p.made.inputs.first().cloned());
+        let Some(truth_path) = frame.and_then(|f| truth_rows.get(&f)) else {
             continue;
         };
         let Some(geometry_id) = p.made.calibrations.first() else {
@@ -73,7 +86,9 @@ pub fn evaluate_depth(
                 cameras.into_iter().map(|g| (g.camera.clone(), g)).collect(),
             );
         }
-        let camera = p.made.key.rsplit('/').next().unwrap_or_default();
+        let camera = p.made.parameters["camera"]
+            .as_str()
+            .unwrap_or_else(|| p.made.key.rsplit('/').next().unwrap_or_default());
         let fx = geometries[geometry_id]
             .get(camera)
             .map(|g| g.model.intrinsics.fx)
@@ -95,12 +110,25 @@ pub fn evaluate_depth(
             return Err(err(format!("{} and {truth_path} differ in size", p.path)));
         }
         images += 1;
-        for (&ours, &t) in d.iter().zip(z) {
+        let sources = product.channel("S");
+        if let Some(h) = product
+            .metadata
+            .as_deref()
+            .and_then(|m| serde_json::from_str::<serde_json::Value>(m).ok())
+            .and_then(|m| m["hole_fraction"].as_f64())
+        {
+            hole_fractions.push(h);
+        }
+        for (i, (&ours, &t)) in d.iter().zip(z).enumerate() {
             if t <= 0.0 {
                 continue;
             }
             hits += 1;
             if ours < 0.0 {
+                continue;
+            }
+            if sources.is_some_and(|s| s[i] == 1.0) {
+                inpainted.push(f64::from(ours - t));
                 continue;
             }
             known += 1;
@@ -140,5 +168,9 @@ pub fn evaluate_depth(
         } else {
             0.0
         },
+        inpainted_pixels: inpainted.len(),
+        inpainted_rmse_mm: rms(&inpainted),
+        hole_fraction: (!hole_fractions.is_empty())
+            .then(|| hole_fractions.iter().sum::<f64>() / hole_fractions.len() as f64),
     }))
 }

@@ -58,6 +58,8 @@ pub struct Report {
     pub depth: Option<DepthFigures>,
     /// The per-frame baseline's depth images, measured the same way.
     pub depth_per_frame: Option<DepthFigures>,
+    /// The merged MDFs of the run's views, measured the same way.
+    pub mdf: Option<DepthFigures>,
 }
 
 /// The run's reader and its products of `kind`; `None` when it has none.
@@ -110,6 +112,7 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
         rectified: None,
         depth: None,
         depth_per_frame: None,
+        mdf: None,
     };
     for stored in calibration_store::list(&root)?.into_iter().flatten() {
         if !stored.calibration.inputs.iter().any(|i| i.run_id == run_id) {
@@ -130,5 +133,6 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
     report.rectified = evaluate_rectified(run_dir, &root, &truth)?;
     report.depth = evaluate_depth(run_dir, &root, "depth")?;
     report.depth_per_frame = evaluate_depth(run_dir, &root, "depth_per_frame")?;
+    report.mdf = evaluate_depth(run_dir, &root, "mdf")?;
     Ok(report)
 }
