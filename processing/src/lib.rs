@@ -34,6 +34,7 @@
 //! | [`depth_products`] | `process --products depth`: each laser sweep triangulated per camera |
 //! | [`mdf_merge`] | a view's depth images merged over laser directions, holes inpainted |
 //! | [`mdf_products`] | `process --products mdf`: each view's MDF, float and 8-bit |
+//! | [`surface_products`] | `process --products surface`: height map, normals and point cloud from the MDFs |
 //! | [`run_frames`] | a run's raw brackets, listed and decoded one at a time |
 //! | [`calibration_store`] | calibrations as content-addressed, versioned artefacts |
 //! | [`zarr_array`] | Zarr v3 arrays described and encoded (uncompressed chunks) for the BTF |
@@ -74,6 +75,7 @@ pub mod response_solve;
 pub mod rig_frame;
 pub mod run_frames;
 pub mod space_time;
+pub mod surface_products;
 pub mod weight;
 pub mod white_balance;
 pub mod zarr_array;

@@ -27,6 +27,7 @@ use stagehand_processing::rectify::RectifyGrid;
 use stagehand_processing::response_calibration::ResponseSet;
 use stagehand_processing::run_frames::{bracket_keys, open_run};
 use stagehand_processing::space_time::SpaceTimeOptions;
+use stagehand_processing::surface_products::{SurfaceSummary, surface_products};
 
 use super::calibrate::{processing_err, root_of, run_rig, store_err};
 use crate::session::SessionError;
@@ -53,6 +54,10 @@ pub enum Product {
     /// left out) into its MDF: OpenEXR `D`, `S` (2 measured, 1 inpainted, 0 none), `N`, `W`,
     /// and an 8-bit PNG as the seed stores it. Makes the depth images first.
     Mdf,
+    /// The sample's surface from every view's MDF, on the rectified images' grid: a height
+    /// map (`products/height/height.exr`), a normal map (`normal/normal.exr`) and a point
+    /// cloud (`cloud/sample.ply`). Makes the depth images and MDFs first.
+    Surface,
 }
 
 /// `--depth-method`.
@@ -194,7 +199,8 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
     let turntable = rig
         .axis_with_role(AxisRole::Turntable)
         .map(|a| a.id.clone());
-    let mdf = want(Product::Mdf);
+    let surface = want(Product::Surface);
+    let mdf = want(Product::Mdf) || surface;
     let grid = if rectifying || mdf {
         let size_mm = match (args.square_mm, manifest.sim.as_ref()) {
             (Some(mm), _) => mm,
@@ -343,6 +349,13 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
         }
         _ => None,
     };
+    let surface = match (surface, &found.geometry, grid) {
+        (true, Some((geometry, geometry_id)), Some(grid)) => {
+            surface_products(&mut store, (geometry, geometry_id), grid, &software)
+                .map_err(processing_err)?
+        }
+        _ => None,
+    };
     let report = Report {
         summary,
         btf_layout: layout.as_ref().map(|l| BtfReport {
@@ -353,6 +366,7 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
         }),
         depth,
         mdf,
+        surface,
     };
     if args.json {
         super::print_json(&report)?;
@@ -390,6 +404,7 @@ struct Report {
     btf_layout: Option<BtfReport>,
     depth: Option<DepthSummary>,
     mdf: Option<MdfSummary>,
+    surface: Option<SurfaceSummary>,
 }
 
 fn print_report(report: &Report, args: &ProcessArgs) {
@@ -438,14 +453,27 @@ fn print_report(report: &Report, args: &ProcessArgs) {
         );
     }
     if let Some(m) = &report.mdf {
+        print!(
+            "mdf: {} views, {} written, {} already current",
+            m.views, m.written, m.skipped
+        );
+        if m.written > 0 {
+            print!(
+                "; {:.2} % of the sample's pixels were holes (inpainted), {} conflicts, {} left unknown",
+                100.0 * m.hole_fraction,
+                m.conflicts,
+                m.unfilled
+            );
+        }
+        println!();
+    }
+    if let Some(s) = &report.surface {
         println!(
-            "mdf: {} views, {} written, {} already current; {:.2} % of the sample's pixels were holes (inpainted), {} conflicts, {} left unknown",
-            m.views,
-            m.written,
-            m.skipped,
-            100.0 * m.hole_fraction,
-            m.conflicts,
-            m.unfilled
+            "surface: {} points from {} views; {:.1} % of the grid's cells measured, the rest inpainted{}",
+            s.points,
+            s.views,
+            100.0 * s.measured_fraction,
+            if s.written { "" } else { " (already current)" }
         );
     }
     println!(

@@ -10,6 +10,7 @@ mod hdr;
 mod laser_planes;
 mod rectified;
 mod response;
+mod surface;
 
 use std::path::Path;
 
@@ -23,6 +24,7 @@ pub use hdr::{ErrorFigures, HdrFigures, evaluate_hdr};
 pub use laser_planes::{LaserPlaneFigures, evaluate_laser_planes};
 pub use rectified::{RectifiedFigures, evaluate_rectified};
 pub use response::{ChannelFigures, ResponseFigures, evaluate_response};
+pub use surface::{SurfaceFigures, evaluate_surface};
 
 /// Errors of `evaluate`.
 #[derive(Debug, thiserror::Error)]
@@ -60,6 +62,8 @@ pub struct Report {
     pub depth_per_frame: Option<DepthFigures>,
     /// The merged MDFs of the run's views, measured the same way.
     pub mdf: Option<DepthFigures>,
+    /// The height and normal maps against the simulated sample's height field.
+    pub surface: Option<SurfaceFigures>,
 }
 
 /// The run's reader and its products of `kind`; `None` when it has none.
@@ -113,6 +117,7 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
         depth: None,
         depth_per_frame: None,
         mdf: None,
+        surface: None,
     };
     for stored in calibration_store::list(&root)?.into_iter().flatten() {
         if !stored.calibration.inputs.iter().any(|i| i.run_id == run_id) {
@@ -134,5 +139,6 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
     report.depth = evaluate_depth(run_dir, &root, "depth")?;
     report.depth_per_frame = evaluate_depth(run_dir, &root, "depth_per_frame")?;
     report.mdf = evaluate_depth(run_dir, &root, "mdf")?;
+    report.surface = evaluate_surface(run_dir)?;
     Ok(report)
 }
