@@ -152,6 +152,7 @@ pub fn calibrate_laser_planes(
         by_frame.insert(frame.path.as_str(), p);
     }
     let mut positions: Vec<LaserPosition> = Vec::new();
+    let mut failed: BTreeMap<(u32, i64, i64), Vec<(f64, ProcessingError)>> = BTreeMap::new();
     for ((colour, mount, arc, _), frames) in &groups {
         let first = &frames[0].meta;
         let tilt = first.laser_tilt_deg.unwrap_or(0.0);
@@ -180,7 +181,16 @@ pub fn calibrate_laser_planes(
         );
         let mut cams: Vec<String> = frames.iter().map(|f| f.meta.camera.clone()).collect();
         cams.dedup();
-        let sheet = fit_sheet(&here, &nominal, &name)?;
+        let sheet = match fit_sheet(&here, &nominal, &name) {
+            Ok(sheet) => sheet,
+            Err(e) => {
+                failed
+                    .entry((*colour, *mount, *arc))
+                    .or_default()
+                    .push((tilt, e));
+                continue;
+            }
+        };
         let sheet = CalibratedSheet {
             tilt_deg: tilt,
             cameras: cams,
@@ -206,7 +216,27 @@ pub fn calibrate_laser_planes(
                     ],
                     nominal_fan: [-a.sin(), a.cos(), 0.0],
                     pencil_check: None,
+                    skipped: Vec::new(),
                 });
+            }
+        }
+    }
+    // A tilt whose line missed the fixture (a sweep wider than it) is left out when the
+    // position has other tilts; a position with none is an error.
+    for ((colour, mount, arc), errors) in failed {
+        let found = positions.iter_mut().find(|p| {
+            p.colour_nm == colour && milli(p.mount_deg) == mount && milli(p.light_arc_deg) == arc
+        });
+        match found {
+            Some(p) => p.skipped.extend(
+                errors
+                    .into_iter()
+                    .map(|(tilt, e)| format!("tilt {tilt}°: {e}")),
+            ),
+            None => {
+                if let Some((_, e)) = errors.into_iter().next() {
+                    return Err(e);
+                }
             }
         }
     }

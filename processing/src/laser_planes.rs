@@ -49,6 +49,9 @@ pub struct LaserPosition {
     /// With three or more tilts: the largest angle (degrees) and offset at the rig origin (mm)
     /// of a middle sheet from the pencil through the first and last, a check of the model.
     pub pencil_check: Option<[f64; 2]>,
+    /// Tilts left out and why (the line missed the fixture there).
+    #[serde(default)]
+    pub skipped: Vec<String>,
 }
 
 /// Every laser position calibrated from one run.
@@ -295,6 +298,7 @@ mod tests {
             nominal_fan: [0.0, 1.0, 0.0],
             nominal_angle_deg: 0.0,
             pencil_check: None,
+            skipped: Vec::new(),
         };
         let turned = position.sheet(2.0).unwrap();
         assert!((angle_between(&turned, &sheet) - 2.0).abs() < 1e-9);

@@ -427,6 +427,40 @@ mod tests {
     }
 
     #[test]
+    fn corners_one_direction_cannot_see_come_from_the_others_or_are_inpainted() {
+        // 8×8 view of a tilted plane; direction A is occluded at all four 2×2 corners.
+        let (w, h) = (8, 8);
+        let truth: Vec<f32> = (0..w * h).map(|i| 500.0 + 0.1 * (i % w) as f32).collect();
+        let corner = |i: usize| {
+            let (x, y) = (i % w, i / w);
+            (x < 2 || x >= w - 2) && (y < 2 || y >= h - 2)
+        };
+        let a: Vec<f32> = (0..w * h)
+            .map(|i| if corner(i) { NO_DEPTH } else { truth[i] })
+            .collect();
+        let options = MergeOptions::default();
+        let region = vec![true; w * h];
+        // With two more directions that see the corners, every pixel is measured.
+        let both = [layer(&a, 2.0), layer(&truth, 1.0), layer(&truth, 1.0)];
+        let m = merge_layers(w, h, &both, 1000.0, &options).unwrap();
+        assert_eq!(hole_fraction(&m, &region), 0.0);
+        assert!(
+            m.depth
+                .iter()
+                .zip(&truth)
+                .all(|(d, t)| (d - t).abs() < 1e-3)
+        );
+        assert_eq!(m.agreeing[0], 2);
+        // Alone, A leaves the corners as holes (16 of 64), inpainted from their neighbours.
+        let mut m = merge_layers(w, h, &[layer(&a, 2.0)], 1000.0, &options).unwrap();
+        assert_eq!(hole_fraction(&m, &region), 0.25);
+        assert_eq!(inpaint(&mut m, &region), 16);
+        for i in 0..w * h {
+            assert!(m.depth[i].is_finite() && m.depth[i] > 499.0 && m.depth[i] < 501.0);
+        }
+    }
+
+    #[test]
     fn holes_inside_the_region_are_filled_and_counted() {
         // A 5×3 image, measured on its left column and right column only.
         let mut d = vec![-1.0f32; 15];

@@ -130,6 +130,9 @@ pub fn run(args: LaserPlanesArgs) -> Result<i32, SessionError> {
             }
             None => println!(),
         }
+        for why in &p.skipped {
+            println!("    left out: {why}");
+        }
     }
     println!("stored in {}", root.join(&stored.id).display());
     Ok(0)
