@@ -222,3 +222,91 @@ fn laser_planes_are_calibrated_and_a_fine_sweep_is_triangulated_through_them() {
     let body = ply.len() - (header.find("end_header\n").expect("a header end") + 11);
     assert_eq!(body, vertices * 24, "six float32 per vertex");
 }
+
+/// The hard scenes of issue 14, end to end at 240×180 (one narrow sweep per scene, through
+/// calibrated laser planes and the cameras' exact geometry): interreflections in `cavity`
+/// (suppressed by the short shutter), a line broadened below the surface in `marble`, and a
+/// highlight riding the line on `glossy_blinn`. Every depth is finite, −1 where unknown, and
+/// the MDF of `marble` and `glossy_blinn` stays within a fraction of a pixel footprint at the
+/// median.
+#[test]
+fn hard_scenes_give_finite_depth_and_no_depth_where_nothing_is_known() {
+    let _turn = crate::grbl_peer::alongside();
+    // Measured median MDF errors in pixel footprints: marble 0.067, glossy_blinn 0.086; cavity
+    // 3.8 (2 mm), with a shutter of 0.3 ms as with 2 ms, so not interreflections above the
+    // noise threshold: not understood yet, and not bounded here beyond finiteness.
+    for (scene, bound) in [
+        ("cavity", None),
+        ("marble", Some(0.2)),
+        ("glossy_blinn", Some(0.2)),
+    ] {
+        let out = tempfile::tempdir().unwrap();
+        let rig = as_built_rig_with("gentle", 12, |text| {
+            text.replacen("[sim]\n", "[sim]\nground_truth = true\n", 1)
+                .replace("width = 480", "width = 240")
+                .replace("height = 360", "height = 180")
+        });
+        let run = run_sequence(
+            "mdf_laser.rhai",
+            rig,
+            &[
+                ("views", "1"),
+                ("positions", "1"),
+                ("mounts", "1"),
+                ("lines", "24"),
+                ("sweep_deg", "0.24"),
+                ("sample", scene),
+            ],
+            out.path(),
+            1,
+        );
+        run.result.as_ref().expect("the sweep runs");
+        let dir = run.dir.to_str().expect("utf-8 path");
+        let truth: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(run.dir.join("as_built.json")).unwrap())
+                .unwrap();
+        let geometry = exact_geometry(&calibrations_dir(out.path()), &truth);
+        let planes = stagehand(&[
+            "calibrate",
+            "laser-planes",
+            dir,
+            "--geometry",
+            &geometry,
+            "--json",
+        ]);
+        let planes_id = planes["id"].as_str().expect("an id").to_string();
+        let made = stagehand(&[
+            "process",
+            dir,
+            "--products",
+            "mdf",
+            "--calibration",
+            &geometry,
+            "--calibration",
+            &planes_id,
+            "--json",
+        ]);
+        assert_eq!(made["mdf"]["written"], 8, "{scene}: {made}");
+        let report = stagehand(&["evaluate", dir]);
+        for kind in ["depth", "mdf"] {
+            for entry in std::fs::read_dir(run.dir.join("products").join(kind)).unwrap() {
+                let path = entry.unwrap().path();
+                let bytes = std::fs::read(&path).unwrap();
+                let planes = stagehand_dataset::exr_planes::decode_exr_planes("product", &bytes)
+                    .expect("an OpenEXR product");
+                let d = planes.channel("D").expect("a D channel");
+                assert!(
+                    d.iter().all(|v| v.is_finite() && (*v == -1.0 || *v > 0.0)),
+                    "{scene}: {}",
+                    path.display()
+                );
+            }
+        }
+        let mdf = &report["mdf"];
+        let median = mdf["median_footprints"].as_f64().expect("a figure");
+        assert!(median.is_finite(), "{scene}: {mdf:#}");
+        if let Some(bound) = bound {
+            assert!(median < bound, "{scene}: {mdf:#}");
+        }
+    }
+}
