@@ -32,7 +32,7 @@ use crate::laser_sheet::{
 use crate::ray_plane::{NO_DEPTH, depth_map, ray_distance};
 use crate::rig_frame::sample_to_camera;
 use crate::run_frames::{axis_angle, channel_image, dataset_err, decode_frame_in, raw_frames};
-use crate::space_time::{NO_TIME, SpaceTime, SpaceTimeOptions};
+use crate::space_time::{DIM_WINDOW_PX, NO_TIME, SpaceTime, SpaceTimeOptions, drop_dim_peaks};
 
 /// How a sweep becomes depth.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -174,6 +174,7 @@ pub fn depth_products(
             software: software.to_string(),
             parameters: json!({
                 "threshold_sigmas": setup.options.threshold_sigmas,
+                "relative_floor": setup.options.relative_floor,
                 "laser_distance_mm": setup.laser_distance_mm,
                 "sheets": setup.laser_planes.map_or("nominal (rig file)", |(_, id)| id),
                 "distance": "along the unit pixel ray from the camera centre, mm; -1 unknown",
@@ -313,7 +314,8 @@ fn one_sweep(
     }
     let (depth, time) = match st {
         Some(st) => {
-            let times = st.finish()?;
+            let mut times = st.finish()?;
+            drop_dim_peaks(&mut times, DIM_WINDOW_PX, setup.options.relative_floor);
             let last = (tilts.len() - 1) as f64;
             let depth = depth_map(&times, &geometry.model, &pose, |t| {
                 if !(0.0..=last).contains(&t) {

@@ -477,8 +477,8 @@ mod tests {
         assert_eq!(filled, 8);
         assert_eq!(m.source[2], source::NONE);
         assert_eq!(m.source[7], source::INPAINTED);
-        for i in 0..15 {
-            if region[i] {
+        for (i, inside) in region.iter().enumerate() {
+            if *inside {
                 assert!(
                     m.depth[i] >= 100.0 && m.depth[i] <= 200.0,
                     "{i}: {}",

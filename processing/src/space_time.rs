@@ -22,6 +22,9 @@ pub struct SpaceTimeOptions {
     pub threshold_sigmas: f64,
     /// The sensor's clipping level in the frames' units, if known.
     pub saturation: Option<f32>,
+    /// A peak dimmer than this fraction of the brightest within [`DIM_WINDOW_PX`] pixels is
+    /// light from elsewhere, not the line ([`drop_dim_peaks`]); 0 keeps every peak.
+    pub relative_floor: f32,
 }
 
 impl Default for SpaceTimeOptions {
@@ -29,8 +32,52 @@ impl Default for SpaceTimeOptions {
         SpaceTimeOptions {
             threshold_sigmas: 8.0,
             saturation: None,
+            relative_floor: 0.25,
         }
     }
+}
+
+/// Half the side of the window [`drop_dim_peaks`] compares a peak with, pixels.
+pub const DIM_WINDOW_PX: usize = 15;
+
+/// Unsets the peaks dimmer than `floor` times the brightest peak within `half` pixels (a
+/// square window): a point in the laser's shadow lit by the line's reflection from a facing
+/// wall (a groove, a cavity) peaks when the line is elsewhere, and no threshold on the
+/// noise can tell it, however short the shutter; beside the directly lit surface it is dim.
+/// The seed suppresses such light by underexposing it; this is that in relative terms.
+/// Returns the peaks unset.
+pub fn drop_dim_peaks(times: &mut PeakTimes, half: usize, floor: f32) -> usize {
+    let (w, h) = (times.width, times.height);
+    if floor.is_nan() || floor <= 0.0 || w == 0 || h == 0 {
+        return 0;
+    }
+    // The window maximum, separably: along rows, then along columns.
+    let mut rows = vec![0.0f32; w * h];
+    for y in 0..h {
+        let line = &times.height_above[y * w..(y + 1) * w];
+        for x in 0..w {
+            let (a, b) = (x.saturating_sub(half), (x + half).min(w - 1));
+            rows[y * w + x] = line[a..=b].iter().copied().fold(0.0, f32::max);
+        }
+    }
+    let mut dropped = 0;
+    for x in 0..w {
+        for y in 0..h {
+            let i = y * w + x;
+            if times.time[i] == NO_TIME {
+                continue;
+            }
+            let (a, b) = (y.saturating_sub(half), (y + half).min(h - 1));
+            let brightest = (a..=b).map(|yy| rows[yy * w + x]).fold(0.0, f32::max);
+            if times.height_above[i] < floor * brightest {
+                times.time[i] = NO_TIME;
+                times.height_above[i] = 0.0;
+                times.saturated[i] = false;
+                dropped += 1;
+            }
+        }
+    }
+    dropped
 }
 
 /// Per pixel, the state of the running search.

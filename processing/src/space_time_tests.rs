@@ -351,3 +351,50 @@ fn a_line_broadened_below_the_surface_peaks_at_its_centre() {
     assert!(median < 0.01, "median {median} mm");
     assert!(known > 0.3, "{known}");
 }
+
+#[test]
+fn a_peak_lit_only_by_a_facing_walls_reflection_is_dropped() {
+    // Pixels of rows 30.. sit in the laser's shadow: they never see the line, only its
+    // reflection off the lit rows at a fifth of its light, 15 frames late.
+    let (direct, truth) = sweep(40, |_, _| 0.0, 1000.0, 4095.0, |_, _| 0.0);
+    let frames: Vec<Vec<f32>> = (0..40)
+        .map(|k| {
+            let mut f = direct[k].clone();
+            for (i, v) in f.iter_mut().enumerate() {
+                if i / W >= 30 {
+                    let lit = if k >= 15 {
+                        direct[k - 15][i] - 20.0
+                    } else {
+                        0.0
+                    };
+                    *v = 20.0 + 0.2 * lit;
+                }
+            }
+            f
+        })
+        .collect();
+    let mut times = analyse(&frames, SpaceTimeOptions::default());
+    let shadowed = |i: &usize| *i / W >= 30;
+    let before = (0..W * H)
+        .filter(shadowed)
+        .filter(|&i| times.time[i] != NO_TIME)
+        .count();
+    assert!(before > 100, "the reflection peaks: {before}");
+    let dropped = drop_dim_peaks(&mut times, DIM_WINDOW_PX, 0.25);
+    let after = (0..W * H)
+        .filter(shadowed)
+        .filter(|&i| times.time[i] != NO_TIME)
+        .count();
+    // The shadowed rows near the lit ones lose their false peaks; the lit rows keep theirs.
+    let near = (0..W * H)
+        .filter(|i| (30..30 + DIM_WINDOW_PX).contains(&(i / W)))
+        .filter(|&i| times.time[i] != NO_TIME)
+        .count();
+    assert_eq!(near, 0, "{dropped} dropped, {after} shadowed peaks left");
+    let (model, pose) = camera();
+    let depth = depth_map(&times, &model, &pose, |t| Some(sheet(t)));
+    let lit: Vec<f32> = depth.iter().take(30 * W).copied().collect();
+    let lit_truth: Vec<Option<f64>> = truth.iter().take(30 * W).copied().collect();
+    let (errs, known) = errors(&lit, &lit_truth);
+    assert!(known > 0.3 && errs[errs.len() / 2] < 0.01, "{known}");
+}

@@ -99,12 +99,11 @@ fn laser_planes_are_calibrated_and_a_fine_sweep_is_triangulated_through_them() {
     let depth = &report["depth"];
     assert_eq!(depth["images"], 8, "{report:#}");
     let figure = |name: &str| depth[name].as_f64().expect("a figure");
-    // Measured: median 0.062 of a pixel footprint over 81,000 pixels of 8 cameras (0.047 with
-    // the sheets exactly known). The RMSE
-    // (10 footprints, 2.5 mm) and the 99th percentile (13 mm) are the few per cent of pixels
-    // whose only peak is light from elsewhere (a point in the laser's shadow lit by its
-    // neighbour bump): one laser direction cannot tell them; the merge over directions is
-    // to come (below). Known: the 6 % of the view the ±0.24° sweep crosses.
+    // Measured: median 0.061 of a pixel footprint over 74,000 pixels of 8 cameras (0.047 with
+    // the sheets exactly known). The RMSE (8.3 footprints, 2.0 mm) and the 99th percentile
+    // (12 mm) are the few per cent of pixels whose only peak is light from elsewhere (a point
+    // in the laser's shadow lit by its neighbour bump) and not much dimmer than the line: the
+    // MDF drops them (below). Known: the 6 % of the view the ±0.24° sweep crosses.
     assert!(figure("median_footprints") < 0.1, "{depth:#}");
     assert!(figure("rmse_mm").is_finite() && figure("p99_mm").is_finite());
     assert!(figure("known_fraction") > 0.03, "{depth:#}");
@@ -127,10 +126,10 @@ fn laser_planes_are_calibrated_and_a_fine_sweep_is_triangulated_through_them() {
             "{baseline:#}"
         );
     }
-    // Measured: median 0.062 footprints against the baseline's 0.17 (2.8× better; 4.4× with
-    // the sheets exactly known, 0.047 against 0.205); the RMSE goes the other way (10 against
-    // 4 footprints: the shadowed pixels lit by a neighbour's reflection, which the baseline's
-    // per-frame maximum mostly skips).
+    // Measured: median 0.061 footprints against the baseline's 0.17 (2.8× better; 4.4× with
+    // the sheets exactly known, 0.047 against 0.205); the sweep's RMSE goes the other way (8.3
+    // against 3.7 footprints: the shadowed pixels lit by a neighbour's reflection, which the
+    // baseline's per-frame maximum mostly skips and the MDF drops).
     let ours = report["depth"]["median_footprints"]
         .as_f64()
         .expect("a figure");
@@ -151,10 +150,17 @@ fn laser_planes_are_calibrated_and_a_fine_sweep_is_triangulated_through_them() {
     let report = stagehand(&["evaluate", dir]);
     let mdf = &report["mdf"];
     let figure = |name: &str| mdf[name].as_f64().expect("a figure");
-    // Measured: RMSE 0.90 footprints (0.22 mm) against the sweeps' 10, 99th percentile
-    // 0.17 mm, median 0.056; 9 % of the measured pixels dropped as spikes or islands. The
-    // hole fraction is 0.91: one narrow sweep per view, the rest inpainted.
-    assert!(figure("rmse_footprints") < 1.5, "{mdf:#}");
+    // Measured: RMSE 0.21 footprints (0.05 mm) against the sweeps' 8.3 and the per-frame
+    // baseline's 3.7 (18× lower), 99th percentile 0.16 mm, median 0.060. The hole fraction is
+    // 0.91: one narrow sweep per view, the rest inpainted.
+    assert!(figure("rmse_footprints") < 0.4, "{mdf:#}");
+    assert!(
+        figure("rmse_footprints") * 5.0
+            < report["depth_per_frame"]["rmse_footprints"]
+                .as_f64()
+                .unwrap(),
+        "{report:#}"
+    );
     assert!(figure("p99_mm") < 0.5, "{mdf:#}");
     assert!(figure("median_footprints") < 0.1, "{mdf:#}");
     assert!(
@@ -202,10 +208,10 @@ fn laser_planes_are_calibrated_and_a_fine_sweep_is_triangulated_through_them() {
     let report = stagehand(&["evaluate", dir]);
     let surface = &report["surface"];
     let figure = |name: &str| surface[name].as_f64().expect("a figure");
-    // Measured: height RMSE 0.14 mm, median 0.013 mm over the 10 % of the cells the sweep
+    // Measured: height RMSE 0.038 mm, median 0.013 mm over the 10 % of the cells the sweep
     // crossed; normals 2.6° at the median.
     assert!(figure("measured_cells") > 3000.0, "{surface:#}");
-    assert!(figure("height_rmse_mm") < 0.3, "{surface:#}");
+    assert!(figure("height_rmse_mm") < 0.1, "{surface:#}");
     assert!(figure("height_median_mm") < 0.05, "{surface:#}");
     assert!(figure("normal_median_deg") < 6.0, "{surface:#}");
     let ply = std::fs::read(run.dir.join("products/cloud/sample.ply")).expect("the cloud");
@@ -227,19 +233,15 @@ fn laser_planes_are_calibrated_and_a_fine_sweep_is_triangulated_through_them() {
 /// calibrated laser planes and the cameras' exact geometry): interreflections in `cavity`
 /// (suppressed by the short shutter), a line broadened below the surface in `marble`, and a
 /// highlight riding the line on `glossy_blinn`. Every depth is finite, −1 where unknown, and
-/// the MDF of `marble` and `glossy_blinn` stays within a fraction of a pixel footprint at the
-/// median.
+/// the MDF stays within a fraction of a pixel footprint at the median.
 #[test]
 fn hard_scenes_give_finite_depth_and_no_depth_where_nothing_is_known() {
     let _turn = crate::grbl_peer::alongside();
-    // Measured median MDF errors in pixel footprints: marble 0.067, glossy_blinn 0.086; cavity
-    // 3.8 (2 mm), with a shutter of 0.3 ms as with 2 ms, so not interreflections above the
-    // noise threshold: not understood yet, and not bounded here beyond finiteness.
-    for (scene, bound) in [
-        ("cavity", None),
-        ("marble", Some(0.2)),
-        ("glossy_blinn", Some(0.2)),
-    ] {
+    // Measured MDF errors in pixel footprints, median (RMSE): cavity 0.12 (4.5), marble
+    // 0.068 (0.11), glossy_blinn 0.091 (0.23). In cavity the walls facing away from the laser
+    // are lit only by the facing wall's reflection; without the relative floor on peaks
+    // (space_time.rs drop_dim_peaks) its median was 3.8, whatever the shutter.
+    for (scene, bound) in [("cavity", 0.3), ("marble", 0.2), ("glossy_blinn", 0.2)] {
         let out = tempfile::tempdir().unwrap();
         let rig = as_built_rig_with("gentle", 12, |text| {
             text.replacen("[sim]\n", "[sim]\nground_truth = true\n", 1)
@@ -304,9 +306,6 @@ fn hard_scenes_give_finite_depth_and_no_depth_where_nothing_is_known() {
         }
         let mdf = &report["mdf"];
         let median = mdf["median_footprints"].as_f64().expect("a figure");
-        assert!(median.is_finite(), "{scene}: {mdf:#}");
-        if let Some(bound) = bound {
-            assert!(median < bound, "{scene}: {mdf:#}");
-        }
+        assert!(median < bound, "{scene}: {mdf:#}");
     }
 }
