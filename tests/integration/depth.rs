@@ -231,17 +231,18 @@ fn laser_planes_are_calibrated_and_a_fine_sweep_is_triangulated_through_them() {
 
 /// The hard scenes of issue 14, end to end at 240×180 (one narrow sweep per scene, through
 /// calibrated laser planes and the cameras' exact geometry): interreflections in `cavity`
-/// (suppressed by the short shutter), a line broadened below the surface in `marble`, and a
-/// highlight riding the line on `glossy_blinn`. Every depth is finite, −1 where unknown, and
-/// the MDF stays within a fraction of a pixel footprint at the median.
+/// (suppressed by the short shutter) and a line broadened below the surface in `marble` (a
+/// highlight riding the line, `glossy_blinn`'s case, is a unit test in space_time_tests.rs,
+/// to keep CI's time). Every depth is finite, −1 where unknown, and the MDF stays within a
+/// fraction of a pixel footprint at the median.
 #[test]
 fn hard_scenes_give_finite_depth_and_no_depth_where_nothing_is_known() {
     let _turn = crate::grbl_peer::alongside();
     // Measured MDF errors in pixel footprints, median (RMSE): cavity 0.12 (4.5), marble
-    // 0.068 (0.11), glossy_blinn 0.091 (0.23). In cavity the walls facing away from the laser
+    // 0.068 (0.11); glossy_blinn, run by hand, 0.091 (0.23). In cavity the walls facing away from the laser
     // are lit only by the facing wall's reflection; without the relative floor on peaks
     // (space_time.rs drop_dim_peaks) its median was 3.8, whatever the shutter.
-    for (scene, bound) in [("cavity", 0.3), ("marble", 0.2), ("glossy_blinn", 0.2)] {
+    for (scene, bound) in [("cavity", 0.3), ("marble", 0.2)] {
         let out = tempfile::tempdir().unwrap();
         let rig = as_built_rig_with("gentle", 12, |text| {
             text.replacen("[sim]\n", "[sim]\nground_truth = true\n", 1)
