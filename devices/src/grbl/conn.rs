@@ -404,11 +404,11 @@ impl Conn {
 
     pub(super) fn absorb_or_resync(&mut self, reply: Reply, request: &str) -> DeviceResult<()> {
         if let Reply::Other(text) = &reply
-            && text.starts_with('<')
-            && text.ends_with('>')
+            && is_damaged_status(text)
         {
-            // A status report garbled inside its brackets (line noise): the framing held, so
-            // nothing else was lost; drop it, and the `?` is asked again.
+            // A status report garbled inside its brackets, or cut short (line noise; a loaded
+            // host dropping the tail of the line): it holds no other reply, so drop it, and the
+            // `?` is asked again. An `ok` lost with the tail shows as the flow's timeout.
             tracing::warn!(
                 "{}: garbled status report `{}` dropped",
                 self.link.device(),
@@ -615,6 +615,16 @@ impl Conn {
     }
 }
 
+/// A status report damaged on its own line: it opens with `<` and holds no other report (no
+/// second `<`, no `>` before its end), so no other reply was mixed into it.
+fn is_damaged_status(text: &str) -> bool {
+    let Some(body) = text.strip_prefix('<') else {
+        return false;
+    };
+    let body = body.strip_suffix('>').unwrap_or(body);
+    !body.contains(['<', '>'])
+}
+
 #[cfg(test)]
 pub(super) mod tests {
     use super::*;
@@ -639,6 +649,30 @@ pub(super) mod tests {
             baud: None,
             home_deg: 0.0,
             machine_sign: 1.0,
+        }
+    }
+
+    #[test]
+    fn a_status_report_garbled_or_cut_short_is_dropped_and_a_mixed_line_resyncs() {
+        let link = SerialLink::new("grbl", "/dev/null", 115_200);
+        let mut c = Conn::new(link, vec![('X', spec(Some("X")))]);
+        // Seen on the real firmware on a loaded host: the report's tail never came.
+        for damaged in [
+            "<Run|MPos:-0.998,-12.495,-0.998|FS:1200,0,",
+            "<Idle|MPos:1.000,2.0%0,3.000|FS:0,0>",
+            "<",
+        ] {
+            let reply = parse_line(damaged);
+            assert!(matches!(reply, Reply::Other(_)), "{damaged}");
+            c.absorb_or_resync(reply, "?").expect(damaged);
+        }
+        for mixed in [
+            "<Run|MPos:1,2<Idle|MPos:1,2,3|FS:0,0>",
+            "<Run|MPos:1>ok",
+            "x<Idle>",
+        ] {
+            let e = c.absorb_or_resync(parse_line(mixed), "?").expect_err(mixed);
+            assert!(e.to_string().contains("is not GRBL 1.1 output"), "{e}");
         }
     }
 

@@ -135,6 +135,21 @@ async fn garbage_resynchronises_and_the_position_is_unverified_afterwards() {
 }
 
 #[tokio::test(start_paused = true)]
+async fn a_status_report_cut_short_is_asked_again_without_a_reset() {
+    let fake = Fake::start(Script::default());
+    let ctl = fake.controller();
+    let mut x = GrblAxis::new(ctl.clone(), &axis("turntable", "X")).unwrap();
+    x.home().await.unwrap();
+    x.move_to(20.0).await.unwrap();
+    let resets = fake.resets();
+    fake.script().cut_status = true;
+    assert_near(x.position().await.unwrap(), 20.0);
+    assert_eq!(fake.resets(), resets, "no reconnect");
+    // The position stays verified: the axis moves on without homing again.
+    assert_near(x.move_to(30.0).await.unwrap(), 30.0);
+}
+
+#[tokio::test(start_paused = true)]
 async fn a_mute_controller_times_out_and_an_unplugged_port_is_disconnected() {
     let fake = Fake::start(Script::default());
     let ctl = fake.controller();

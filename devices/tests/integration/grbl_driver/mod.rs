@@ -39,6 +39,8 @@ struct Script {
     reject_next: Option<u32>,
     /// Answer the next `?` with garbage.
     garbage_on_status: bool,
+    /// Answer the next `?` with a status report cut short (its tail lost).
+    cut_status: bool,
     /// Stop answering anything.
     mute: bool,
 }
@@ -53,6 +55,7 @@ impl Default for Script {
             alarm_on_move: None,
             reject_next: None,
             garbage_on_status: false,
+            cut_status: false,
             mute: false,
         }
     }
@@ -277,6 +280,11 @@ async fn run_fake(mut port: DeviceEnd, script: Arc<Mutex<Script>>, seen: Arc<Mut
                     if s.garbage_on_status {
                         s.garbage_on_status = false;
                         send("\x07\x01 line noise %%%\r\n");
+                        continue;
+                    }
+                    if s.cut_status {
+                        s.cut_status = false;
+                        send("<Run|MPos:-0.998,-12.495,-0.998|FS:1200,0,\r\n");
                         continue;
                     }
                     let state = if m.alarm {
