@@ -32,13 +32,57 @@ pub struct SimSpec {
     #[serde(default)]
     pub knobs: SimKnobs,
     /// Write ground truth (depth, normals, noise-free radiance, material parameters) beside
-    /// every frame.
+    /// every frame: `true`, or the kinds wanted (`["depth"]`).
     #[serde(default)]
-    pub ground_truth: bool,
+    pub ground_truth: GroundTruthPlanes,
     /// Draw an "as built" rig (`[sim.as_built]`): cameras, responses and lamps off nominal,
     /// recorded in `as_built.json` beside each run for evaluation.
     #[serde(default)]
     pub as_built: Option<crate::as_built::AsBuiltSpec>,
+}
+
+/// The kinds of ground-truth plane, in the order they are written.
+pub const GROUND_TRUTH_KINDS: [&str; 4] = ["depth", "normal", "radiance", "material"];
+
+/// Which ground-truth planes the simulated cameras write beside every frame (`sim.ground_truth`):
+/// `true` (all of [`GROUND_TRUTH_KINDS`]), `false` (none), or a list of kinds. The noise-free
+/// radiance is a second render of every frame; the geometric planes (depth, normals,
+/// material) only change when the scene moves, so a laser sweep evaluated for depth asks for
+/// `["depth"]` and pays for one per sweep.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum GroundTruthPlanes {
+    /// Every kind, or none.
+    All(bool),
+    /// These kinds.
+    Only(Vec<String>),
+}
+
+impl Default for GroundTruthPlanes {
+    fn default() -> Self {
+        GroundTruthPlanes::All(false)
+    }
+}
+
+impl GroundTruthPlanes {
+    /// Whether kind `kind` is written.
+    pub fn wants(&self, kind: &str) -> bool {
+        match self {
+            GroundTruthPlanes::All(all) => *all,
+            GroundTruthPlanes::Only(kinds) => kinds.iter().any(|k| k == kind),
+        }
+    }
+
+    /// Whether any plane is written.
+    pub fn any(&self) -> bool {
+        GROUND_TRUTH_KINDS.iter().any(|k| self.wants(k))
+    }
+
+    /// Whether only planes that depend on the scene's geometry are written (no radiance):
+    /// they stay the same while only the light changes.
+    pub fn geometry_only(&self) -> bool {
+        !self.wants("radiance")
+    }
 }
 
 fn default_sample() -> String {
@@ -58,7 +102,7 @@ impl Default for SimSpec {
             sample_size_mm: default_sample_size(),
             quality: default_quality(),
             knobs: SimKnobs::default(),
-            ground_truth: false,
+            ground_truth: GroundTruthPlanes::default(),
             as_built: None,
         }
     }
@@ -116,6 +160,19 @@ impl SimSpec {
                     "sim.sample `{}` is unknown; use one of {} or the path of a scene file ending in .toml",
                     self.sample,
                     FIXTURES.join(", ")
+                ),
+            ));
+        }
+        if let GroundTruthPlanes::Only(kinds) = &self.ground_truth
+            && let Some(bad) = kinds
+                .iter()
+                .find(|k| !GROUND_TRUTH_KINDS.contains(&k.as_str()))
+        {
+            return Err((
+                key("sim", "ground_truth"),
+                format!(
+                    "sim.ground_truth names `{bad}`; use true, false or a list of {}",
+                    GROUND_TRUTH_KINDS.join(", ")
                 ),
             ));
         }
@@ -235,6 +292,33 @@ mod tests {
         let (l, _, m) = err(&text);
         assert_eq!(l, line_of(&text, "spp_side = 100"));
         assert!(m.contains("spp_side") && m.contains("1 to 64"), "{m}");
+    }
+
+    #[test]
+    fn ground_truth_is_all_none_or_the_kinds_named() {
+        let with = |value: &str| {
+            BUILTIN_LIGHTSTAGE.replacen("[sim]\n", &format!("[sim]\nground_truth = {value}\n"), 1)
+        };
+        let all = check_rig(&with("true"), "x.toml")
+            .expect("all")
+            .ground_truth;
+        assert!(all.any() && all.wants("radiance") && !all.geometry_only());
+        let none = check_rig(&with("false"), "x.toml")
+            .expect("none")
+            .ground_truth;
+        assert!(!none.any());
+        let depth = check_rig(&with("[\"depth\"]"), "x.toml")
+            .expect("depth")
+            .ground_truth;
+        assert!(depth.any() && depth.wants("depth") && !depth.wants("normal"));
+        assert!(depth.geometry_only());
+        let text = with("[\"depth\", \"albedo\"]");
+        let (l, _, m) = err(&text);
+        assert_eq!(l, line_of(&text, "albedo"));
+        assert!(
+            m.contains("`albedo`") && m.contains("depth, normal, radiance, material"),
+            "{m}"
+        );
     }
 
     #[test]

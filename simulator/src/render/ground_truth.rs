@@ -12,6 +12,7 @@ use rayon::prelude::*;
 use serde_json::{Value, json};
 use stagehand_devices::ground_truth::{GroundTruthData, GroundTruthPlane};
 
+use super::config::GroundTruthPlanes;
 use super::geometry::{RigAngles, ToSample};
 use super::material::{Material, Model};
 use super::scene::{Hit, Scene, Shading};
@@ -74,6 +75,11 @@ impl GroundTruth {
     /// The planes as the device layer carries them (kinds `depth`, `normal`, `radiance`,
     /// `material`, in that order).
     pub fn into_data(self) -> GroundTruthData {
+        self.into_data_of(&GroundTruthPlanes::All(true))
+    }
+
+    /// The planes of the kinds `wanted` asks for, in [`GroundTruth::into_data`]'s order.
+    pub fn into_data_of(self, wanted: &GroundTruthPlanes) -> GroundTruthData {
         let plane = |kind: &str, channels: &[&str], samples: Vec<f32>| GroundTruthPlane {
             kind: kind.to_string(),
             channels: channels.iter().map(|c| c.to_string()).collect(),
@@ -82,12 +88,15 @@ impl GroundTruth {
         GroundTruthData {
             width: self.width,
             height: self.height,
-            planes: vec![
+            planes: [
                 plane("depth", &DEPTH_CHANNELS, self.depth_mm),
                 plane("normal", &NORMAL_CHANNELS, self.normal),
                 plane("radiance", &RADIANCE_CHANNELS, self.radiance),
                 plane("material", &MATERIAL_CHANNELS, self.material),
-            ],
+            ]
+            .into_iter()
+            .filter(|p| wanted.wants(&p.kind))
+            .collect(),
             notes: self.notes,
         }
     }
@@ -126,7 +135,23 @@ impl Renderer {
         world: &WorldSnapshot,
         camera_id: &str,
     ) -> Result<GroundTruth, RenderError> {
-        let radiance = self.radiance(world, camera_id)?;
+        self.ground_truth_of(world, camera_id, &GroundTruthPlanes::All(true))
+    }
+
+    /// [`Renderer::ground_truth`] for the planes `wanted` asks for: without radiance, no
+    /// second render (the radiance plane is then empty).
+    pub fn ground_truth_of(
+        &self,
+        world: &WorldSnapshot,
+        camera_id: &str,
+        wanted: &GroundTruthPlanes,
+    ) -> Result<GroundTruth, RenderError> {
+        let (radiance, render_notes) = if wanted.wants("radiance") {
+            let r = self.radiance(world, camera_id)?;
+            (r.rgb.into_iter().map(finite).collect(), r.notes)
+        } else {
+            (Vec::new(), Value::Null)
+        };
         let cam = self.camera(camera_id)?;
         let sample = self.sample(&world.fixture)?;
         let knobs = self.knobs_for(&sample);
@@ -198,14 +223,14 @@ impl Renderer {
                 "default_model": Model::default().name(),
                 "background": "all channels 0",
             },
-            "render": radiance.notes,
+            "render": render_notes,
         });
         Ok(GroundTruth {
             width: cam.width,
             height: cam.height,
             depth_mm,
             normal,
-            radiance: radiance.rgb.into_iter().map(finite).collect(),
+            radiance,
             material,
             notes,
         })

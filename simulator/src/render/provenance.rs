@@ -37,7 +37,7 @@ impl Renderer {
             scene_path: sample.source.path.clone(),
             scene_text: sample.source.text.clone(),
             sample_size_mm: sample.size_mm,
-            ground_truth: self.sim.ground_truth,
+            ground_truth: self.sim.ground_truth.any(),
         })
     }
 

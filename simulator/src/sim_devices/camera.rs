@@ -51,13 +51,23 @@ impl SimCamera {
         &mut self,
         snapshot: &WorldSnapshot,
     ) -> DeviceResult<Option<Arc<GroundTruthData>>> {
-        if !self.world.sim().ground_truth {
+        let wanted = &self.world.sim().ground_truth;
+        if !wanted.any() {
             return Ok(None);
         }
-        let key = WorldSnapshot {
+        let mut key = WorldSnapshot {
             rig_time_s: 0.0,
             ..snapshot.clone()
         };
+        if wanted.geometry_only() {
+            // Depth, normals and material see neither the lamps nor the laser (its tilt only
+            // turns the sheet): a sweep shares one ground truth.
+            key.lamps.clear();
+            key.laser = None;
+            if let Some(laser) = &self.world.rig().laser {
+                key.axes.remove(&laser.tilt_axis);
+            }
+        }
         if let Some((seen, data)) = &self.ground_truth
             && *seen == key
         {
@@ -66,7 +76,7 @@ impl SimCamera {
         let data = self
             .world
             .renderer()
-            .ground_truth(snapshot, &self.spec.id)
+            .ground_truth_of(snapshot, &self.spec.id, wanted)
             .map_err(|e| {
                 DeviceError::new(
                     self.spec.id.clone(),
@@ -75,7 +85,7 @@ impl SimCamera {
                     },
                 )
             })?;
-        let data = Arc::new(data.into_data());
+        let data = Arc::new(data.into_data_of(wanted));
         self.ground_truth = Some((key, Arc::clone(&data)));
         Ok(Some(data))
     }
