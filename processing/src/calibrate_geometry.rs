@@ -56,6 +56,35 @@ pub struct CameraGeometry {
     pub axis: TurntableAxis,
 }
 
+impl CameraGeometry {
+    /// A camera whose geometry is known, not fitted (the rig file's nominal cameras, the
+    /// simulator's truth): zero residuals and uncertainties, the turntable axis the rig
+    /// frame's z axis through its origin.
+    pub fn exact(camera: &str, model: CameraModel, rig_to_camera: Pose) -> CameraGeometry {
+        let r = rig_to_camera.rotation_matrix();
+        CameraGeometry {
+            camera: camera.to_string(),
+            model,
+            rig_to_camera,
+            centre_mm: rig_to_camera.centre().into(),
+            rms_px: 0.0,
+            view_rms_px: Vec::new(),
+            std: IntrinsicsStd {
+                fx: 0.0,
+                fy: 0.0,
+                cx: 0.0,
+                cy: 0.0,
+            },
+            axis: TurntableAxis {
+                point: rig_to_camera.translation,
+                direction: (r * Vector3::z()).into(),
+                radius_mm: 0.0,
+                rms_mm: 0.0,
+            },
+        }
+    }
+}
+
 /// What a geometric calibration found: the cameras it placed, and each camera it could not
 /// calibrate or place, with why (processing then refuses that camera's frames).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

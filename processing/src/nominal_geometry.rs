@@ -7,11 +7,9 @@
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::calibrate_camera::IntrinsicsStd;
 use crate::calibrate_geometry::CameraGeometry;
 use crate::camera_model::{CameraModel, Distortion, Intrinsics, Pose};
 use crate::error::ProcessingError;
-use crate::rig_frame::TurntableAxis;
 
 /// A camera as the rig file describes it (the fields of its `[[camera]]` table that place it).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -88,26 +86,7 @@ pub fn nominal_geometry(cam: &NominalCamera) -> Result<CameraGeometry, Processin
         },
         distortion: cam.distortion,
     };
-    Ok(CameraGeometry {
-        camera: cam.id.clone(),
-        model,
-        rig_to_camera: pose,
-        centre_mm: centre.into(),
-        rms_px: 0.0,
-        view_rms_px: Vec::new(),
-        std: IntrinsicsStd {
-            fx: 0.0,
-            fy: 0.0,
-            cx: 0.0,
-            cy: 0.0,
-        },
-        axis: TurntableAxis {
-            point: pose.translation,
-            direction: (r * Vector3::z()).into(),
-            radius_mm: 0.0,
-            rms_mm: 0.0,
-        },
-    })
+    Ok(CameraGeometry::exact(&cam.id, model, pose))
 }
 
 #[cfg(test)]

@@ -42,6 +42,10 @@ pub enum CalibrateCommand {
         /// Fit the r⁶ radial distortion term k3 too (for lenses whose distortion reaches far).
         #[arg(long)]
         fit_k3: bool,
+        /// Store the simulator's exact cameras (RUN/as_built.json; simulated runs only)
+        /// instead of a fit, to measure other products apart from calibration error.
+        #[arg(long, conflicts_with_all = ["corners", "square_mm", "fit_k3"])]
+        from_truth: bool,
         /// Print the stored calibration as JSON.
         #[arg(long)]
         json: bool,
@@ -117,10 +121,17 @@ pub fn calibrate(command: CalibrateCommand) -> Result<i32, SessionError> {
     match command {
         CalibrateCommand::Geometry {
             run_dir,
+            from_truth: true,
+            json,
+            ..
+        } => super::calibrate_geometry::geometry_from_truth(&run_dir, json),
+        CalibrateCommand::Geometry {
+            run_dir,
             corners,
             square_mm,
             fit_k3,
             json,
+            ..
         } => super::calibrate_geometry::calibrate_geometry(
             &run_dir, corners, square_mm, fit_k3, json,
         ),

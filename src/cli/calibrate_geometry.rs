@@ -107,3 +107,44 @@ pub fn calibrate_geometry(
     println!("stored in {}", root_of(run_dir).join(&stored.id).display());
     Ok(status)
 }
+
+/// Runs `stagehand calibrate geometry --from-truth`: the simulator's exact cameras stored as a
+/// geometry calibration (marked `from_truth`, which `evaluate` leaves out).
+pub fn geometry_from_truth(run_dir: &Path, json: bool) -> Result<i32, SessionError> {
+    let path = run_dir.join("as_built.json");
+    let text = std::fs::read_to_string(&path).map_err(|e| {
+        SessionError::Io(format!(
+            "{}: {e}: --from-truth needs a simulated run whose rig sets [sim.as_built]",
+            path.display()
+        ))
+    })?;
+    let truth: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| SessionError::Io(format!("{}: {e}", path.display())))?;
+    let cameras =
+        crate::evaluate::truth_geometry(&truth).map_err(|e| SessionError::Io(e.to_string()))?;
+    let calibration = Calibration {
+        kind: CalibrationKind::Geometry,
+        cameras: cameras.iter().map(|c| c.camera.clone()).collect(),
+        lamps: Vec::new(),
+        inputs: vec![CalibrationInput {
+            run_id: run_id(run_dir),
+            frames: Vec::new(),
+        }],
+        parameters: serde_json::json!({"from_truth": true}),
+        result: serde_json::json!({ "cameras": cameras }),
+        quality: serde_json::json!({"note": "the simulator's cameras as built, not a fit"}),
+        software: format!("stagehand {}", env!("CARGO_PKG_VERSION")),
+    };
+    let stored = calibration_store::save(&root_of(run_dir), calibration).map_err(store_err)?;
+    if json {
+        super::print_json(&stored)?;
+    } else {
+        println!(
+            "calibration {} ({} cameras from the simulator's truth)\nstored in {}",
+            stored.id,
+            cameras.len(),
+            root_of(run_dir).join(&stored.id).display()
+        );
+    }
+    Ok(0)
+}

@@ -4,10 +4,11 @@
 //! at the sample top, X along 0°), and the distortion residual: the largest distance, over a
 //! grid across the image, between where the true and the fitted camera image the same ray.
 
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Rotation3, Vector3};
 use serde::{Deserialize, Serialize};
+use stagehand_processing::calibrate_geometry::CameraGeometry;
 use stagehand_processing::calibration_store::StoredCalibration;
-use stagehand_processing::camera_model::{CameraModel, Distortion, Intrinsics};
+use stagehand_processing::camera_model::{CameraModel, Distortion, Intrinsics, Pose};
 use stagehand_processing::geometry_calibration::GeometryCalibration;
 
 use super::EvaluateError;
@@ -73,6 +74,32 @@ impl TrueCamera {
             distortion: Distortion { k1, k2, p1, p2, k3 },
         }
     }
+}
+
+/// Every camera of `truth` (`as_built.json`) as a geometry calibration places a camera,
+/// exactly: `stagehand calibrate geometry --from-truth` stores them, so depth and other
+/// products can be measured apart from the geometric calibration's own error.
+pub fn truth_geometry(truth: &serde_json::Value) -> Result<Vec<CameraGeometry>, EvaluateError> {
+    let bad = |message: String| EvaluateError::Truth {
+        path: "as_built.json".into(),
+        message,
+    };
+    let cameras = truth["cameras"]
+        .as_object()
+        .ok_or_else(|| bad("no `cameras` object".into()))?;
+    let mut out = Vec::with_capacity(cameras.len());
+    for (id, camera) in cameras {
+        let t: TrueCamera = serde_json::from_value(camera["geometry"].clone())
+            .map_err(|e| bad(format!("camera {id}: {e}")))?;
+        let rotation =
+            Rotation3::from_matrix_unchecked(Matrix3::from_row_slice(&t.rotation.concat()));
+        out.push(CameraGeometry::exact(
+            id,
+            t.model(),
+            Pose::from_parts(&rotation, Vector3::from(t.translation)),
+        ));
+    }
+    Ok(out)
 }
 
 /// Evaluates `stored` (a geometry calibration) against `truth` (`as_built.json`).

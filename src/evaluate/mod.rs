@@ -19,7 +19,7 @@ use stagehand_processing::calibration_store::{self, CalibrationKind, calibration
 
 pub use colour::{ColourFigures, LampFigures, evaluate_colour};
 pub use depth::{DepthFigures, evaluate_depth};
-pub use geometry::{CameraFigures, GeometryFigures, evaluate_geometry};
+pub use geometry::{CameraFigures, GeometryFigures, evaluate_geometry, truth_geometry};
 pub use hdr::{ErrorFigures, HdrFigures, evaluate_hdr};
 pub use laser_planes::{LaserPlaneFigures, evaluate_laser_planes};
 pub use rectified::{RectifiedFigures, evaluate_rectified};
@@ -120,7 +120,10 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
         surface: None,
     };
     for stored in calibration_store::list(&root)?.into_iter().flatten() {
-        if !stored.calibration.inputs.iter().any(|i| i.run_id == run_id) {
+        if !stored.calibration.inputs.iter().any(|i| i.run_id == run_id)
+            || stored.calibration.parameters["from_truth"] == true
+        {
+            // Another run's, or the truth itself (`calibrate geometry --from-truth`).
             continue;
         }
         match stored.calibration.kind {

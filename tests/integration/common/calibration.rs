@@ -4,11 +4,6 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 use stagehand::rig::RigSource;
-use stagehand_processing::calibrate_camera::IntrinsicsStd;
-use stagehand_processing::calibrate_geometry::CameraGeometry;
-use stagehand_processing::calibration_store::{self, Calibration, CalibrationKind};
-use stagehand_processing::rig_frame::TurntableAxis;
-use stagehand_processing::{CameraModel, Distortion, Intrinsics, Pose};
 
 use super::small_rig;
 
@@ -52,97 +47,15 @@ pub fn stagehand(args: &[&str]) -> serde_json::Value {
     serde_json::from_slice(&out.stdout).expect("JSON on stdout")
 }
 
-/// The Rodrigues vector of rotation matrix `m` (through its quaternion, Shepperd's method).
-fn rodrigues(m: [[f64; 3]; 3]) -> [f64; 3] {
-    let trace = m[0][0] + m[1][1] + m[2][2];
-    let (w, x, y, z) = if trace > 0.0 {
-        let s = 2.0 * (1.0 + trace).sqrt();
-        let (a, b, c) = (m[2][1] - m[1][2], m[0][2] - m[2][0], m[1][0] - m[0][1]);
-        (0.25 * s, a / s, b / s, c / s)
-    } else if m[0][0] > m[1][1] && m[0][0] > m[2][2] {
-        let s = 2.0 * (1.0 + m[0][0] - m[1][1] - m[2][2]).sqrt();
-        let (a, b, c) = (m[2][1] - m[1][2], m[0][1] + m[1][0], m[0][2] + m[2][0]);
-        (a / s, 0.25 * s, b / s, c / s)
-    } else if m[1][1] > m[2][2] {
-        let s = 2.0 * (1.0 + m[1][1] - m[0][0] - m[2][2]).sqrt();
-        let (a, b, c) = (m[0][2] - m[2][0], m[0][1] + m[1][0], m[1][2] + m[2][1]);
-        (a / s, b / s, 0.25 * s, c / s)
-    } else {
-        let s = 2.0 * (1.0 + m[2][2] - m[0][0] - m[1][1]).sqrt();
-        let (a, b, c) = (m[1][0] - m[0][1], m[0][2] + m[2][0], m[1][2] + m[2][1]);
-        (a / s, b / s, c / s, 0.25 * s)
-    };
-    let n = (x * x + y * y + z * z).sqrt();
-    if n < 1e-12 {
-        return [0.0; 3];
-    }
-    let angle = 2.0 * n.atan2(w);
-    [x / n * angle, y / n * angle, z / n * angle]
-}
-
-/// A geometry calibration of every camera exactly as built (OpenCV's convention, from
-/// as_built.json), stored under `root`: what a perfect geometric calibration would store.
-pub fn exact_geometry(root: &Path, truth: &serde_json::Value) -> String {
-    let num = |v: &serde_json::Value| v.as_f64().expect("a number");
-    let cameras: Vec<CameraGeometry> = truth["cameras"]
-        .as_object()
-        .expect("cameras")
-        .iter()
-        .map(|(id, cam)| {
-            let g = &cam["geometry"];
-            let rows = [0, 1, 2].map(|r| [0, 1, 2].map(|c| num(&g["rotation"][r][c])));
-            let t = [0, 1, 2].map(|i| num(&g["translation"][i]));
-            let d = [0, 1, 2, 3, 4].map(|i| num(&g["distortion"][i]));
-            CameraGeometry {
-                camera: id.clone(),
-                model: CameraModel {
-                    intrinsics: Intrinsics {
-                        fx: num(&g["fx"]),
-                        fy: num(&g["fy"]),
-                        cx: num(&g["cx"]),
-                        cy: num(&g["cy"]),
-                    },
-                    distortion: Distortion {
-                        k1: d[0],
-                        k2: d[1],
-                        p1: d[2],
-                        p2: d[3],
-                        k3: d[4],
-                    },
-                },
-                rig_to_camera: Pose {
-                    rotation: rodrigues(rows),
-                    translation: t,
-                },
-                centre_mm: [0, 1, 2].map(|i| num(&g["centre_mm"][i])),
-                rms_px: 0.0,
-                view_rms_px: Vec::new(),
-                std: IntrinsicsStd {
-                    fx: 0.0,
-                    fy: 0.0,
-                    cx: 0.0,
-                    cy: 0.0,
-                },
-                axis: TurntableAxis {
-                    point: t,
-                    direction: [rows[0][2], rows[1][2], rows[2][2]],
-                    radius_mm: 0.0,
-                    rms_mm: 0.0,
-                },
-            }
-        })
-        .collect();
-    let calibration = Calibration {
-        kind: CalibrationKind::Geometry,
-        cameras: cameras.iter().map(|c| c.camera.clone()).collect(),
-        lamps: Vec::new(),
-        inputs: Vec::new(),
-        parameters: serde_json::json!({"exact": true}),
-        result: serde_json::to_value(&cameras).expect("json"),
-        quality: serde_json::json!({}),
-        software: "test".into(),
-    };
-    calibration_store::save(root, calibration)
-        .expect("stored")
-        .id
+/// Stores the simulator's exact cameras of simulated run `run_dir` as a geometry calibration
+/// (`stagehand calibrate geometry --from-truth`); returns its id.
+pub fn exact_geometry(run_dir: &Path) -> String {
+    let stored = stagehand(&[
+        "calibrate",
+        "geometry",
+        run_dir.to_str().expect("utf-8 path"),
+        "--from-truth",
+        "--json",
+    ]);
+    stored["id"].as_str().expect("an id").to_string()
 }
