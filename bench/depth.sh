@@ -19,20 +19,13 @@ bin="${STAGEHAND_BIN:-target/release/stagehand}"
 [ -x "$bin" ] || cargo build --release
 [ -x /usr/bin/time ] || { echo "bench/depth.sh needs /usr/bin/time (apt-get install time)" >&2; exit 2; }
 
+source bench/lib/rig.sh
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
-sed -e "s/width = 1024/width = $width/; s/height = 768/height = $height/" \
-    devices/rigs/lightstage.toml > "$work/rig.toml"
-printf '\n[sim.as_built]\nseed = 3\nresponse = "gentle"\n' >> "$work/rig.toml"
-cp "$work/rig.toml" "$work/rig-aa.toml"
-printf '\n[sim.knobs]\nspp_side = 2\n' >> "$work/rig-aa.toml"
+as_built_rig "$width" "$height"
 
 echo "== geometry calibration (${width}×${height})" >&2
-"$bin" run sequences/calibration_checkerboard.rhai --rig "$work/rig-aa.toml" --out "$work/runs" --yes > /dev/null
-geometry="$("$bin" calibrate geometry "$work"/runs/calibration_checkerboard-* --json \
-    | python3 -c 'import json,sys; d=json.load(sys.stdin); print(d["id"]); print(",".join(c["camera"] for c in d["result"]["cameras"]))' || true)"
-geometry_id="$(echo "$geometry" | sed -n 1p)"
-cameras="$(echo "$geometry" | sed -n 2p)"
+checkerboard_geometry
 echo "geometry $geometry_id covers $cameras" >&2
 
 printf '%-7s %-20s %9s %8s %9s %10s %12s\n' "lines" "products" "raw frms" "wall s" "raw fps" "peak MiB" "full (min)"
@@ -48,8 +41,7 @@ for n in "$lines" $((2 * lines)); do
     raw="$(python3 -c "import sqlite3,sys; c=sqlite3.connect(sys.argv[1]); cams=sys.argv[2].split(','); q='SELECT count(*) FROM frames WHERE kind=\"raw\" AND laser_on AND fixture != \"planes\" AND camera IN (%s)' % ','.join('?'*len(cams)); print(c.execute(q, cams).fetchone()[0])" "$run/index.sqlite" "$cameras")"
     for case in "depth space-time" "depth per-frame" "mdf space-time"; do
         set -- $case
-        rm -rf "$run/products"
-        python3 -c "import sqlite3,sys; c=sqlite3.connect(sys.argv[1]); c.execute('DELETE FROM products'); c.commit()" "$run/index.sqlite"
+        clear_products "$run"
         /usr/bin/time -f '%e %M' -o "$work/time" "$bin" process "$run" --products "$1" \
             --depth-method "$2" --calibration "$geometry_id" --calibration "$planes_id" \
             --cameras "$cameras" --json > "$work/summary.json"

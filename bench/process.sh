@@ -18,21 +18,14 @@ bin="${STAGEHAND_BIN:-target/release/stagehand}"
 [ -x "$bin" ] || cargo build --release
 [ -x /usr/bin/time ] || { echo "bench/process.sh needs /usr/bin/time (apt-get install time)" >&2; exit 2; }
 
+source bench/lib/rig.sh
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
-sed -e "s/width = 1024/width = $width/; s/height = 768/height = $height/" \
-    devices/rigs/lightstage.toml > "$work/rig.toml"
-printf '\n[sim.as_built]\nseed = 3\nresponse = "gentle"\n' >> "$work/rig.toml"
-cp "$work/rig.toml" "$work/rig-aa.toml"
-printf '\n[sim.knobs]\nspp_side = 2\n' >> "$work/rig-aa.toml"
+as_built_rig "$width" "$height"
 
 echo "== calibrations (${width}×${height})" >&2
-"$bin" run sequences/calibration_checkerboard.rhai --rig "$work/rig-aa.toml" --out "$work/runs" --yes > /dev/null
+checkerboard_geometry
 "$bin" run sequences/calibration_response.rhai --rig "$work/rig.toml" --out "$work/runs" --yes > /dev/null
-geometry="$("$bin" calibrate geometry "$work"/runs/calibration_checkerboard-* --json \
-    | python3 -c 'import json,sys; d=json.load(sys.stdin); print(d["id"]); print(",".join(c["camera"] for c in d["result"]["cameras"]))' || true)"
-geometry_id="$(echo "$geometry" | sed -n 1p)"
-cameras="$(echo "$geometry" | sed -n 2p)"
 response_id="$("$bin" calibrate response "$work"/runs/calibration_response-* --json \
     | python3 -c 'import json,sys; print(json.load(sys.stdin)["id"])')"
 echo "geometry $geometry_id covers $cameras; response $response_id" >&2
@@ -46,9 +39,7 @@ for lights in 1 2; do
     mkdir -p "$out/calibrations"
     cp -r "$work/runs/calibrations/$geometry_id" "$work/runs/calibrations/$response_id" "$out/calibrations/"
     for products in btf rectified,btf; do
-        rm -rf "$run/products"
-        sqlite3_clear="DELETE FROM products"
-        python3 -c "import sqlite3,sys; c=sqlite3.connect(sys.argv[1]); c.execute('$sqlite3_clear'); c.commit()" "$run/index.sqlite"
+        clear_products "$run"
         /usr/bin/time -f '%e %M' -o "$work/time" "$bin" process "$run" --products "$products" \
             --calibration "$response_id" --calibration "$geometry_id" --cameras "$cameras" --json > "$work/summary.json"
         read -r wall kib < "$work/time"

@@ -340,9 +340,7 @@ fn one_sweep(
         let to_sample =
             nalgebra::Rotation3::from_axis_angle(&nalgebra::Vector3::z_axis(), -table.to_radians());
         let emitter = to_sample * nominal_emitter(&mount, arc);
-        let r = pose.rotation_matrix();
-        let camera = -(r.transpose() * nalgebra::Vector3::from(pose.translation));
-        triangulation_volume(&emitter, &camera, &sheet)
+        triangulation_volume(&emitter, &pose.centre(), &sheet)
     });
     let metadata = json!({
         "camera": sweep.camera,

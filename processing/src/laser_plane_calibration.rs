@@ -24,7 +24,7 @@ use crate::laser_planes::{
     CalibratedSheet, LaserPlanes, LaserPosition, PLANES_FIXTURE, angle_between, fit_plane,
     oriented_like,
 };
-use crate::laser_sheet::{LaserMount, laser_channel, nominal_sheet, scan_axis};
+use crate::laser_sheet::{LaserMount, laser_channel, nominal_emitter, nominal_sheet, scan_axis};
 use crate::ray_plane::{Plane, pixel_ray};
 use crate::rig_frame::sample_to_camera;
 use crate::run_frames::{axis_angle, channel_image, decode_frame_in, raw_frames};
@@ -71,6 +71,14 @@ pub struct LaserPlanesResult {
 
 /// Fewest fitted points on each height for a sheet.
 pub const MIN_POINTS_PER_HEIGHT: usize = 10;
+
+/// A line point dimmer than this fraction of the frame's bright line (its 90th percentile)
+/// is not the line.
+pub const RELATIVE_FLOOR: f32 = 0.25;
+
+/// A sheet whose points lie farther than this from it (RMS, mm) was fitted to more than the
+/// line, and is refused.
+pub const MAX_SHEET_RMS_MM: f64 = 0.25;
 
 /// A line point found on the fixture, rig frame, and whether it lies on the raised plane.
 type FixturePoint = (Vector3<f64>, bool);
@@ -202,18 +210,14 @@ pub fn calibrate_laser_planes(
         match at {
             Some(i) => positions[i].sheets.push(sheet),
             None => {
-                let (a, e) = (arc_deg.to_radians(), mount_deg.to_radians());
+                let a = arc_deg.to_radians();
                 positions.push(LaserPosition {
                     colour_nm: *colour,
                     mount_deg,
                     light_arc_deg: arc_deg,
                     nominal_angle_deg: angle_between(&sheet.plane, &nominal),
                     sheets: vec![sheet],
-                    nominal_emitter_mm: [
-                        e.cos() * a.cos() * setup.laser_distance_mm,
-                        e.cos() * a.sin() * setup.laser_distance_mm,
-                        e.sin() * setup.laser_distance_mm,
-                    ],
+                    nominal_emitter_mm: nominal_emitter(&laser, arc_deg).into(),
                     nominal_fan: [-a.sin(), a.cos(), 0.0],
                     pencil_check: None,
                     skipped: Vec::new(),
@@ -291,11 +295,18 @@ fn frame_points(
         camera: m.camera.clone(),
         source: Box::new(e),
     })?;
+    // The fixture is uniformly white: where the line lies on it, it is about equally bright
+    // everywhere. Peaks far dimmer are light from elsewhere (the line reflected off the step,
+    // stray light in a column the line does not cross), found above the noise all the same.
+    let mut heights: Vec<f32> = found.points.iter().map(|p| p.height).collect();
+    heights.sort_by(f32::total_cmp);
+    let bright = heights.get(heights.len() * 9 / 10).copied().unwrap_or(0.0);
+    let floor = RELATIVE_FLOOR * bright;
     let f = setup.fixture;
     let half = 0.5 * f.size_mm - f.margin_mm;
     let to_rig = nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), table.to_radians());
     let mut out = Vec::with_capacity(found.points.len());
-    for p in found.points {
+    for p in found.points.into_iter().filter(|p| p.height >= floor) {
         let (u, v) = match axis {
             crate::laser_line::ScanAxis::Columns => (p.along as f64, p.across),
             crate::laser_line::ScanAxis::Rows => (p.across, p.along as f64),
@@ -323,18 +334,84 @@ fn frame_points(
     Ok(out)
 }
 
-/// The sheet through `points` with outliers trimmed (residuals beyond 4 robust σ, at least
-/// 0.02 mm, in three rounds), oriented like `nominal`.
+/// Candidate planes [`consensus`] tries.
+const CONSENSUS_TRIES: usize = 400;
+
+/// A point within this distance of a candidate plane supports it, mm.
+const CONSENSUS_TOLERANCE_MM: f64 = 0.2;
+
+/// The points that support the plane through three of them (one on each height at least)
+/// that most points support (RANSAC with a fixed sequence of draws, so a calibration is
+/// reproducible): a least-squares start from all points is pulled off by a fifth of stray
+/// points, and trimming from there keeps them. All the points when no three make a plane.
+fn consensus(points: &[FixturePoint]) -> Vec<FixturePoint> {
+    let n = points.len();
+    if n < 3 {
+        return points.to_vec();
+    }
+    let mut state: u64 = 0x9e37_79b9_7f4a_7c15;
+    let mut draw = || {
+        // SplitMix64.
+        state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        ((z ^ (z >> 31)) % n as u64) as usize
+    };
+    let mut best: Option<(usize, Vector3<f64>, f64)> = None;
+    for _ in 0..CONSENSUS_TRIES {
+        let (a, b, c) = (points[draw()], points[draw()], points[draw()]);
+        if a.1 == b.1 && b.1 == c.1 {
+            continue;
+        }
+        let Some(normal) = (b.0 - a.0).cross(&(c.0 - a.0)).try_normalize(1e-9) else {
+            continue;
+        };
+        let d = normal.dot(&a.0);
+        let support = points
+            .iter()
+            .filter(|p| (normal.dot(&p.0) - d).abs() <= CONSENSUS_TOLERANCE_MM)
+            .count();
+        if best.is_none_or(|(s, _, _)| support > s) {
+            best = Some((support, normal, d));
+        }
+    }
+    match best {
+        Some((support, normal, d)) if support >= 3 => points
+            .iter()
+            .filter(|p| (normal.dot(&p.0) - d).abs() <= CONSENSUS_TOLERANCE_MM)
+            .copied()
+            .collect(),
+        _ => points.to_vec(),
+    }
+}
+
+/// The least share of a tilt's points the consensus plane must hold: with less, two sheets
+/// (or the line and as much stray light) compete and neither is taken.
+const MIN_CONSENSUS: f64 = 0.6;
+
+/// The sheet through `points`: the consensus of [`consensus`], then outliers trimmed
+/// (residuals beyond 4 robust σ, at least 0.02 mm, in three rounds), oriented like `nominal`;
+/// refused when the points kept lie farther than [`MAX_SHEET_RMS_MM`] from it.
 fn fit_sheet(
     points: &[FixturePoint],
     nominal: &Plane,
     name: &str,
 ) -> Result<CalibratedSheet, ProcessingError> {
-    let mut kept: Vec<FixturePoint> = points.to_vec();
     let ill = |why: String| ProcessingError::IllPosed {
         what: "laser-plane calibration",
         why: format!("{name}: {why}"),
     };
+    let mut kept: Vec<FixturePoint> = consensus(points);
+    if points.len() >= 2 * MIN_POINTS_PER_HEIGHT
+        && (kept.len() as f64) < MIN_CONSENSUS * points.len() as f64
+    {
+        return Err(ill(format!(
+            "no plane holds most of its points (at best {} of {}, within {CONSENSUS_TOLERANCE_MM} mm): light other than the line was taken for it — check for reflections and stray light on the fixture",
+            kept.len(),
+            points.len()
+        )));
+    }
     let count = |kept: &[FixturePoint]| {
         let high = kept.iter().filter(|p| p.1).count();
         (kept.len() - high, high)
@@ -376,6 +453,12 @@ fn fit_sheet(
         / kept.len() as f64)
         .sqrt();
     let (low, high) = count(&kept);
+    if rms.is_nan() || rms > MAX_SHEET_RMS_MM {
+        return Err(ill(format!(
+            "its {} points lie {rms:.2} mm from the best plane (RMS; at most {MAX_SHEET_RMS_MM} mm): light other than the line was taken for it — check for reflections and stray light on the fixture",
+            kept.len()
+        )));
+    }
     Ok(CalibratedSheet {
         tilt_deg: 0.0,
         plane,
@@ -384,4 +467,53 @@ fn fit_sheet(
         rms_mm: rms,
         cameras: Vec::new(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Points of the sheet x + 0.3 z = 0 on the fixture: the low plane (z = 0, y < 0) and the
+    /// raised one (z = 20, y > 0), 0.01 mm of noise.
+    fn sheet_points(plane: impl Fn(f64, f64) -> f64) -> Vec<FixturePoint> {
+        let mut out = Vec::new();
+        for i in 0..40 {
+            let y = 2.0 + 0.8 * f64::from(i);
+            let noise = 0.01 * ((f64::from(i) * 1.7).sin());
+            out.push((Vector3::new(plane(-y, 0.0) + noise, -y, 0.0), false));
+            out.push((Vector3::new(plane(y, 20.0) - noise, y, 20.0), true));
+        }
+        out
+    }
+
+    fn nominal() -> Plane {
+        Plane::through([0.0, 0.0, 0.0], [1.0, 0.0, 0.3]).unwrap()
+    }
+
+    #[test]
+    fn stray_points_off_the_line_are_trimmed() {
+        let mut points = sheet_points(|_, z| -0.3 * z);
+        // A fifth as many again of stray light on the low plane, far from the line.
+        for i in 0..16 {
+            let x = -30.0 + 4.0 * f64::from(i);
+            points.push((Vector3::new(x, -10.0 - f64::from(i), 0.0), false));
+        }
+        let sheet = fit_sheet(&points, &nominal(), "test").expect("a sheet");
+        assert!(angle_between(&sheet.plane, &nominal()) < 0.01, "{sheet:?}");
+        assert!(sheet.rms_mm < 0.02, "{sheet:?}");
+        assert_eq!((sheet.points_low, sheet.points_high), (40, 40));
+    }
+
+    #[test]
+    fn points_of_two_sheets_are_refused_not_averaged() {
+        // Half the points from a sheet turned 10° away: no plane fits both.
+        let mut points = sheet_points(|_, z| -0.3 * z);
+        let turned = (10f64).to_radians().tan();
+        points.extend(sheet_points(|y, z| -0.3 * z + turned * y));
+        let e = fit_sheet(&points, &nominal(), "test").expect_err("two sheets");
+        assert!(
+            e.to_string().contains("no plane holds most of its points"),
+            "{e}"
+        );
+    }
 }

@@ -40,10 +40,8 @@ pub fn pixel_ray(
     (u, v): (f64, f64),
 ) -> Option<(Vector3<f64>, Vector3<f64>)> {
     let (x, y) = camera.normalise(u, v)?;
-    let r = pose.rotation_matrix();
-    let centre = -(r.transpose() * Vector3::from(pose.translation));
-    let dir = (r.transpose() * Vector3::new(x, y, 1.0)).normalize();
-    Some((centre, dir))
+    let dir = (pose.rotation_matrix().transpose() * Vector3::new(x, y, 1.0)).normalize();
+    Some((pose.centre(), dir))
 }
 
 /// The distance along pixel `(u, v)`'s unit ray (pixel centres at integers) from the camera

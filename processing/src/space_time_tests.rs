@@ -2,7 +2,7 @@ use nalgebra::{Rotation3, Vector3};
 
 use super::*;
 use crate::camera_model::{CameraModel, Distortion, Intrinsics, Pose};
-use crate::ray_plane::{NO_DEPTH, Plane, depth_map, ray_distance};
+use crate::ray_plane::{NO_DEPTH, Plane, depth_map, pixel_ray, ray_distance};
 
 const W: usize = 64;
 const H: usize = 48;
@@ -83,10 +83,8 @@ fn sweep_with(
             let Some(d) = ray_distance(&model, &pose, (u, v), &plane) else {
                 break;
             };
-            let (x, y) = model.normalise(u, v).unwrap();
-            let r = pose.rotation_matrix();
-            let centre = -(r.transpose() * Vector3::from(pose.translation));
-            let p = centre + (r.transpose() * Vector3::new(x, y, 1.0)).normalize() * d;
+            let (centre, dir) = pixel_ray(&model, &pose, (u, v)).unwrap();
+            let p = centre + dir * d;
             let next = height(p.x, p.y);
             hit = Some((p, d));
             if (next - z).abs() < 1e-9 {

@@ -178,6 +178,31 @@ pub fn surface_products(
     for p in &products {
         current &= store.is_current(p).map_err(dataset_err(&run_dir))?;
     }
+    if current {
+        // The figures are in the current height map's metadata: no MDF needs reading.
+        let height = store
+            .products()
+            .map_err(dataset_err(&run_dir))?
+            .into_iter()
+            .find(|p| p.made.kind == "height")
+            .ok_or_else(|| bad("the current height product is not indexed".into()))?;
+        let bytes = std::fs::read(run_dir.join(&height.path))
+            .map_err(|e| bad(format!("{}: {e}", height.path)))?;
+        let planes = decode_exr_planes(&height.path, &bytes).map_err(dataset_err(&run_dir))?;
+        let meta: serde_json::Value = planes
+            .metadata
+            .as_deref()
+            .and_then(|m| serde_json::from_str(m).ok())
+            .ok_or_else(|| bad(format!("{} lacks its metadata", height.path)))?;
+        let (Some(points), Some(measured)) =
+            (meta["points"].as_u64(), meta["measured_fraction"].as_f64())
+        else {
+            return Err(bad(format!("{}'s metadata lacks its figures", height.path)));
+        };
+        summary.points = points as usize;
+        summary.measured_fraction = measured;
+        return Ok(Some(summary));
+    }
     let mut points = Vec::new();
     for p in &mdfs {
         let camera = p.made.parameters["camera"].as_str().unwrap_or_default();
@@ -215,9 +240,6 @@ pub fn surface_products(
         .filter(|s| **s == source::MEASURED)
         .count() as f64
         / cells.max(1) as f64;
-    if current {
-        return Ok(Some(summary));
-    }
     let normals = map.normals();
     let n = grid.pixels as u32;
     let metadata = json!({"grid": grid, "views": mdfs.len(), "points": summary.points, "measured_fraction": summary.measured_fraction}).to_string();

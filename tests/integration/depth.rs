@@ -8,8 +8,6 @@
 //! `stagehand process --products depth`, and `stagehand evaluate` against the simulator's
 //! truth: the laser as built and the ground-truth depth.
 
-use stagehand_processing::calibration_store::calibrations_dir;
-
 use super::common::calibration::{as_built_rig_with, exact_geometry, stagehand};
 use super::common::run_sequence;
 
@@ -18,7 +16,7 @@ fn laser_planes_are_calibrated_and_a_fine_sweep_is_triangulated_through_them() {
     let _turn = crate::grbl_peer::alongside();
     let out = tempfile::tempdir().unwrap();
     let rig = as_built_rig_with("gentle", 12, |text| {
-        text.replacen("[sim]\n", "[sim]\nground_truth = true\n", 1)
+        text.replacen("[sim]\n", "[sim]\nground_truth = [\"depth\"]\n", 1)
     });
     let run = run_sequence(
         "mdf_laser.rhai",
@@ -35,10 +33,7 @@ fn laser_planes_are_calibrated_and_a_fine_sweep_is_triangulated_through_them() {
     );
     run.result.as_ref().expect("the sweep runs");
     let dir = run.dir.to_str().expect("utf-8 path");
-    let truth: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(run.dir.join("as_built.json")).unwrap())
-            .unwrap();
-    let geometry = exact_geometry(&calibrations_dir(out.path()), &truth);
+    let geometry = exact_geometry(&run.dir);
 
     // With the rig file's sheets, the laser as built (its mount, arc, tilt zero and roll
     // drawn off their marks) puts every depth off.
@@ -245,7 +240,7 @@ fn hard_scenes_give_finite_depth_and_no_depth_where_nothing_is_known() {
     for (scene, bound) in [("cavity", 0.3), ("marble", 0.2)] {
         let out = tempfile::tempdir().unwrap();
         let rig = as_built_rig_with("gentle", 12, |text| {
-            text.replacen("[sim]\n", "[sim]\nground_truth = true\n", 1)
+            text.replacen("[sim]\n", "[sim]\nground_truth = [\"depth\"]\n", 1)
                 .replace("width = 480", "width = 240")
                 .replace("height = 360", "height = 180")
         });
@@ -265,10 +260,7 @@ fn hard_scenes_give_finite_depth_and_no_depth_where_nothing_is_known() {
         );
         run.result.as_ref().expect("the sweep runs");
         let dir = run.dir.to_str().expect("utf-8 path");
-        let truth: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(run.dir.join("as_built.json")).unwrap())
-                .unwrap();
-        let geometry = exact_geometry(&calibrations_dir(out.path()), &truth);
+        let geometry = exact_geometry(&run.dir);
         let planes = stagehand(&[
             "calibrate",
             "laser-planes",
