@@ -39,6 +39,8 @@
 //! | [`calibration_store`] | calibrations as content-addressed, versioned artefacts |
 //! | [`zarr_array`] | Zarr v3 arrays described and encoded (uncompressed chunks) for the BTF |
 //! | [`btf_layout`] | which capture fills each BTF cell, views and lights in sample-frame angles |
+//! | [`dipole`] | the dipole's R_d, its total reflectance and its line-source profile |
+//! | [`dipole_fit`] | α′ and σ′t from a laser line's lateral falloff |
 //! | [`error`] | typed errors |
 #![deny(unsafe_code)]
 
@@ -54,6 +56,8 @@ pub mod checkerboard;
 pub mod colour_calibration;
 pub mod corner_subpix;
 pub mod depth_products;
+pub mod dipole;
+pub mod dipole_fit;
 pub mod error;
 pub mod geometry_calibration;
 pub mod gray_image;
