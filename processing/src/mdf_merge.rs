@@ -318,7 +318,7 @@ fn onion_peel(merged: &mut MergedDepth, region: &[bool]) -> usize {
 }
 
 /// Relaxes the inpainted pixels of `merged` towards the mean of their 4-neighbours (measured
-/// pixels held fixed) until the largest change falls below a millionth of the depth range, or
+/// pixels held fixed) until the largest change falls below a millionth of the depths, or
 /// [`RELAX_PASSES`]: Laplace's equation with the measured border as its boundary.
 fn relax_inpainted(merged: &mut MergedDepth) {
     let width = merged.width;
@@ -338,7 +338,8 @@ fn relax_inpainted(merged: &mut MergedDepth) {
         .fold((f32::MAX, f32::MIN), |(lo, hi), (d, _)| {
             (lo.min(*d), hi.max(*d))
         });
-    let tolerance = ((hi - lo) * 1e-6).max(1e-6);
+    // A millionth of the depths' size: below that, f32 rounding is all that changes.
+    let tolerance = (hi.abs().max(lo.abs()) * 1e-6).max(1e-6);
     for _ in 0..RELAX_PASSES {
         let mut largest = 0.0f32;
         for &i in &filled {

@@ -111,17 +111,9 @@ pub fn calibrate_geometry(
 /// Runs `stagehand calibrate geometry --from-truth`: the simulator's exact cameras stored as a
 /// geometry calibration (marked `from_truth`, which `evaluate` leaves out).
 pub fn geometry_from_truth(run_dir: &Path, json: bool) -> Result<i32, SessionError> {
-    let path = run_dir.join("as_built.json");
-    let text = std::fs::read_to_string(&path).map_err(|e| {
-        SessionError::Io(format!(
-            "{}: {e}: --from-truth needs a simulated run whose rig sets [sim.as_built]",
-            path.display()
-        ))
-    })?;
-    let truth: serde_json::Value = serde_json::from_str(&text)
-        .map_err(|e| SessionError::Io(format!("{}: {e}", path.display())))?;
-    let cameras =
-        crate::evaluate::truth_geometry(&truth).map_err(|e| SessionError::Io(e.to_string()))?;
+    let cameras = crate::evaluate::read_truth(run_dir)
+        .and_then(|truth| crate::evaluate::truth_geometry(&truth))
+        .map_err(|e| SessionError::Io(format!("--from-truth: {e}")))?;
     let calibration = Calibration {
         kind: CalibrationKind::Geometry,
         cameras: cameras.iter().map(|c| c.camera.clone()).collect(),

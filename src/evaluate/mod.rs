@@ -91,16 +91,20 @@ fn products_of(
     Ok((!products.is_empty()).then_some((reader, products)))
 }
 
-/// Evaluates every calibration of `kinds` stored beside `run_dir` that was computed from it.
-pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
+/// The simulator's truth of `run_dir` (`as_built.json`); an error for a run without one.
+pub fn read_truth(run_dir: &Path) -> Result<serde_json::Value, EvaluateError> {
     let truth_path = run_dir.join(stagehand_dataset::layout::AS_BUILT);
     let text = std::fs::read_to_string(&truth_path)
         .map_err(|_| EvaluateError::NoTruth(run_dir.display().to_string()))?;
-    let truth: serde_json::Value =
-        serde_json::from_str(&text).map_err(|e| EvaluateError::Truth {
-            path: truth_path.display().to_string(),
-            message: e.to_string(),
-        })?;
+    serde_json::from_str(&text).map_err(|e| EvaluateError::Truth {
+        path: truth_path.display().to_string(),
+        message: e.to_string(),
+    })
+}
+
+/// Evaluates every calibration of `kinds` stored beside `run_dir` that was computed from it.
+pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
+    let truth = read_truth(run_dir)?;
     let run_id = run_dir
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
