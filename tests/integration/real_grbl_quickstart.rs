@@ -104,10 +104,15 @@ fn quickstart_runs_on_the_real_grbl_firmware() {
     let wall_s = started.elapsed().as_secs_f64();
     let summary = match &real.result {
         Ok(s) => s.clone(),
+        // The faults go last: CI shows the tail of a long failure message.
         Err(e) => panic!(
-            "run failed: {e}\nevents: {:#?}\ntraffic:\n{}",
+            "run failed: {e}\nevents: {:#?}\ntraffic:\n{}\nfaults: {:#?}\nrun failed: {e}",
             real.events,
-            board.traffic()
+            board.traffic(),
+            real.events
+                .iter()
+                .filter(|e| matches!(e, Event::DeviceFault { .. }))
+                .collect::<Vec<_>>(),
         ),
     };
     assert_eq!(summary.status, RunStatus::Done, "{summary:?}");

@@ -578,6 +578,10 @@ impl GrblController {
             c.check_continuity(epoch, alarms, cmd)?;
             let now = Instant::now();
             if now >= deadline {
+                c.absorb_arrived(&cmd.line()).await?;
+                if let Some(r) = c.done.remove(&seq) {
+                    return r.map_err(|code| c.rejected(cmd, code));
+                }
                 return Err(c.deaf(&cmd.line(), timeout_s));
             }
             let slice = (deadline - now).as_secs_f64().min(SLICE_S);
