@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::dipole::DipoleMedium;
 use crate::error::ProcessingError;
+use crate::line_search::log_search;
 
 /// One sample of the falloff: distance from the line's centre (mm) and the light leaving the
 /// surface there per unit line power (mm⁻¹).
@@ -179,22 +180,14 @@ pub fn fit_dipole(
         }
         0.5 * (a0 + a1)
     };
-    let misfit = |log_s: f64| {
-        let sigma = log_s.exp();
+    let misfit = |sigma: f64| {
         let m = medium(alpha_for(sigma), sigma);
         used.iter()
             .map(|s| (s.value - m.line_profile(s.x_mm)).powi(2))
             .sum::<f64>()
     };
     // σ′t: the log-spaced grid, then golden section about its best point.
-    let (llo, lhi) = (lo.ln(), hi.ln());
-    let step = (lhi - llo) / (COARSE - 1) as f64;
-    let best = (0..COARSE)
-        .map(|i| llo + step * i as f64)
-        .map(|l| (l, misfit(l)))
-        .min_by(|a, b| a.1.total_cmp(&b.1))
-        .map_or(llo, |(l, _)| l);
-    let sigma = golden(&misfit, (best - step).max(llo), (best + step).min(lhi)).exp();
+    let sigma = log_search(&misfit, lo, hi, COARSE, FINE);
     let alpha = alpha_for(sigma);
     let mut flags = Vec::new();
     if sigma < lo * 1.01 || sigma > hi / 1.01 {
@@ -230,29 +223,6 @@ fn window_sum(samples: &[ProfileSample], f: impl Fn(&ProfileSample) -> f64) -> f
         .filter(|w| w[0].x_mm.signum() == w[1].x_mm.signum())
         .map(|w| 0.5 * (f(&w[0]) + f(&w[1])) * (w[1].x_mm - w[0].x_mm))
         .sum()
-}
-
-/// The minimum of `f` on [a, b] by golden-section search ([`FINE`] steps).
-fn golden(f: &impl Fn(f64) -> f64, mut a: f64, mut b: f64) -> f64 {
-    let r = 0.5 * (5f64.sqrt() - 1.0);
-    let (mut c, mut d) = (b - r * (b - a), a + r * (b - a));
-    let (mut fc, mut fd) = (f(c), f(d));
-    for _ in 0..FINE {
-        if fc < fd {
-            b = d;
-            d = c;
-            fd = fc;
-            c = b - r * (b - a);
-            fc = f(c);
-        } else {
-            a = c;
-            c = d;
-            fc = fd;
-            d = a + r * (b - a);
-            fd = f(d);
-        }
-    }
-    0.5 * (a + b)
 }
 
 #[cfg(test)]

@@ -41,6 +41,9 @@
 //! | [`btf_layout`] | which capture fills each BTF cell, views and lights in sample-frame angles |
 //! | [`dipole`] | the dipole's R_d, its total reflectance and its line-source profile |
 //! | [`dipole_fit`] | α′ and σ′t from a laser line's lateral falloff |
+//! | [`ward`] | the isotropic Ward lobe of the reflectometer fit |
+//! | [`ward_tube`] | the reflectometer tube's diffuse and specular integrals at a sample point |
+//! | [`ward_fit`] | a pixel's Ward ρd, ρs and α from its cart sweep, weak cases flagged |
 //! | [`error`] | typed errors |
 #![deny(unsafe_code)]
 
@@ -67,6 +70,7 @@ pub mod laser_line;
 pub mod laser_plane_calibration;
 pub mod laser_planes;
 pub mod laser_sheet;
+pub(crate) mod line_search;
 pub mod mdf_merge;
 pub mod mdf_products;
 pub mod nominal_geometry;
@@ -80,6 +84,9 @@ pub mod rig_frame;
 pub mod run_frames;
 pub mod space_time;
 pub mod surface_products;
+pub mod ward;
+pub mod ward_fit;
+pub mod ward_tube;
 pub mod weight;
 pub mod white_balance;
 pub mod zarr_array;

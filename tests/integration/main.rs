@@ -31,6 +31,7 @@ mod run_state;
 mod sequences;
 mod sim_tradeoff;
 mod verify_retake;
+mod ward_model;
 
 #[path = "../../simulator/tests/integration/grbl_peer/mod.rs"]
 mod grbl_peer;

@@ -1,0 +1,521 @@
+//! The per-pixel fit of the linear-light reflectometer (Gardner et al. 2003; seed 004 §2.4):
+//! isotropic Ward ρd (RGB), ρs and α from a pixel's response to the tube at each cart stop.
+//!
+//! The response is linear in the ρ's for a given α ([`crate::ward_tube`]), so for each α the
+//! four ρ's are solved in closed form (least squares, none negative) and α alone is searched:
+//! a log grid over the whole range, then golden section. Gardner starts a non-linear fit from
+//! the diffuse and specular peaks; the global search in α needs no start and cannot stop in a
+//! local minimum. What the data cannot say is flagged, never hidden.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::ProcessingError;
+use crate::line_search::log_search;
+use crate::ward_tube::{Tube, ViewPoint};
+
+/// One cart stop of one pixel: where the tube was and what the pixel saw (radiance per unit
+/// of the tube's calibrated intensity per millimetre, per channel).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WardSample {
+    /// The tube's x (cart position less half the travel), mm.
+    pub tube_x_mm: f64,
+    /// Radiance over the tube's per-mm intensity of each channel.
+    pub rgb: [f64; 3],
+    /// The pixel clipped in this frame: left out of the fit.
+    pub saturated: bool,
+}
+
+/// Settings of [`fit_ward`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct WardFitOptions {
+    /// The α search interval.
+    pub alpha_range: [f64; 2],
+    /// A pixel whose brightest sample is below this (in sample units) is black.
+    pub black_level: f64,
+    /// A fit whose RMS residual exceeds this fraction of the data's RMS is flagged.
+    pub poor_fit_rms: f64,
+}
+
+impl Default for WardFitOptions {
+    fn default() -> Self {
+        WardFitOptions {
+            alpha_range: [0.005, 1.0],
+            black_level: 1e-6,
+            poor_fit_rms: 0.1,
+        }
+    }
+}
+
+/// Why a pixel's parameters are weakly determined or not at all.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum WardFlag {
+    /// Nothing above the black level: every ρ is 0 and α means nothing.
+    Black,
+    /// No specular light found (ρs ≈ 0): α is not determined.
+    NoSpecular,
+    /// The mirror direction meets the tube outside the sweep (or beyond the tube's ends): the
+    /// specular peak was never seen, so ρs and α rest on a tail.
+    SpecularPeakOutsideSweep,
+    /// α is narrower than the angle between two cart stops: the peak falls between samples and
+    /// α is an upper bound at best (ρs·α² is what is measured).
+    AlphaBelowStopSpacing,
+    /// α ended at an end of its search interval.
+    AlphaAtSearchEnd,
+    /// Some samples clipped and were left out.
+    Saturated,
+    /// Isotropic Ward does not explain the data (RMS residual above the option's fraction).
+    PoorFit,
+}
+
+/// A pixel's fit.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WardFit {
+    /// Diffuse albedo per channel.
+    pub rho_d: [f64; 3],
+    /// Specular albedo (grey).
+    pub rho_s: f64,
+    /// Roughness α.
+    pub alpha: f64,
+    /// RMS of (data − model) over the samples used, relative to the data's RMS.
+    pub relative_rms: f64,
+    /// Samples used (not clipped).
+    pub samples: usize,
+    /// Weak determinations.
+    pub flags: Vec<WardFlag>,
+}
+
+/// Least usable samples for a fit (four ρ's and α).
+pub const MIN_SAMPLES: usize = 6;
+const GRID: usize = 20;
+const GOLDEN_STEPS: usize = 24;
+
+/// Fits a pixel seen at `view` under `tube` to its `samples`. Errors when a sample is not
+/// finite or too few samples are usable; every weaker case is a flag on the result.
+pub fn fit_ward(
+    tube: &Tube,
+    view: &ViewPoint,
+    samples: &[WardSample],
+    options: &WardFitOptions,
+) -> Result<WardFit, ProcessingError> {
+    if let Some(bad) = samples
+        .iter()
+        .find(|s| !s.tube_x_mm.is_finite() || s.rgb.iter().any(|v| !v.is_finite()))
+    {
+        return Err(ProcessingError::IllPosed {
+            what: "Ward fit",
+            why: format!(
+                "the sample at tube x {} mm is not finite ({:?}); check the frame and its calibration",
+                bad.tube_x_mm, bad.rgb
+            ),
+        });
+    }
+    let used: Vec<&WardSample> = samples.iter().filter(|s| !s.saturated).collect();
+    if used.len() < MIN_SAMPLES {
+        return Err(ProcessingError::IllPosed {
+            what: "Ward fit",
+            why: format!(
+                "{} usable samples ({} clipped) where it needs {MIN_SAMPLES}; scan more cart stops or shorten the exposure",
+                used.len(),
+                samples.len() - used.len()
+            ),
+        });
+    }
+    let mut flags = Vec::new();
+    if used.len() < samples.len() {
+        flags.push(WardFlag::Saturated);
+    }
+    let brightest = used.iter().flat_map(|s| s.rgb).fold(0.0f64, f64::max);
+    if brightest <= options.black_level {
+        flags.insert(0, WardFlag::Black);
+        return Ok(WardFit {
+            rho_d: [0.0; 3],
+            rho_s: 0.0,
+            alpha: options.alpha_range[1],
+            relative_rms: 0.0,
+            samples: used.len(),
+            flags,
+        });
+    }
+    let diffuse: Vec<f64> = used
+        .iter()
+        .map(|s| tube.diffuse(view, s.tube_x_mm) / std::f64::consts::PI)
+        .collect();
+    let data_sq: f64 = used.iter().flat_map(|s| s.rgb).map(|v| v * v).sum();
+    let solve = |alpha: f64| {
+        let specular: Vec<f64> = used
+            .iter()
+            .map(|s| tube.specular(view, s.tube_x_mm, alpha))
+            .collect();
+        Sums::new(&used, &diffuse, &specular).solve()
+    };
+    let [lo, hi] = options.alpha_range;
+    let alpha = log_search(&|a: f64| solve(a).sse, lo, hi, GRID, GOLDEN_STEPS);
+    let best = solve(alpha);
+    let relative_rms = (best.sse.max(0.0) / data_sq.max(f64::MIN_POSITIVE)).sqrt();
+
+    // What the data cannot say.
+    let (mirror_x, mirror_y) = view.mirror_point(tube.height_mm);
+    let (first, last) = used
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), s| {
+            (a.min(s.tube_x_mm), b.max(s.tube_x_mm))
+        });
+    let peak_seen = mirror_x >= first && mirror_x <= last && mirror_y.abs() <= 0.5 * tube.length_mm;
+    let specular_peak = best.rho_s * tube.specular(view, mirror_x, alpha);
+    let diffuse_peak = best.rho_d.iter().fold(0.0f64, |m, v| m.max(*v))
+        * tube.diffuse(view, mirror_x)
+        / std::f64::consts::PI;
+    if !peak_seen {
+        flags.push(WardFlag::SpecularPeakOutsideSweep);
+    }
+    if best.rho_s <= 0.0 || specular_peak < 1e-3 * diffuse_peak.max(options.black_level) {
+        flags.push(WardFlag::NoSpecular);
+    } else {
+        if alpha < stop_angle(tube, view, samples, mirror_x) {
+            flags.push(WardFlag::AlphaBelowStopSpacing);
+        }
+        if alpha < lo * 1.01 || alpha > hi / 1.01 {
+            flags.push(WardFlag::AlphaAtSearchEnd);
+        }
+    }
+    if relative_rms > options.poor_fit_rms {
+        flags.push(WardFlag::PoorFit);
+    }
+    Ok(WardFit {
+        rho_d: best.rho_d,
+        rho_s: best.rho_s,
+        alpha,
+        relative_rms,
+        samples: used.len(),
+        flags,
+    })
+}
+
+/// Half the angle the tube turns through, seen from the point, between the two stops nearest
+/// the mirror point (clipped or not): the half-vector's step, the finest α the sweep resolves.
+fn stop_angle(tube: &Tube, view: &ViewPoint, samples: &[WardSample], mirror_x: f64) -> f64 {
+    let mut xs: Vec<f64> = samples.iter().map(|s| s.tube_x_mm).collect();
+    xs.sort_by(f64::total_cmp);
+    xs.dedup();
+    let Some(k) = xs.windows(2).position(|w| w[1] >= mirror_x) else {
+        return 0.0;
+    };
+    let (_, y) = view.mirror_point(tube.height_mm);
+    let y = y.clamp(-0.5 * tube.length_mm, 0.5 * tube.length_mm);
+    let dir = |x: f64| (nalgebra::Vector3::new(x, y, tube.height_mm) - view.p).normalize();
+    0.5 * dir(xs[k]).angle(&dir(xs[k + 1]))
+}
+
+/// The normal-equation sums of one α over the samples k of one channel, with a = D_k/π,
+/// b = S_k and L the channel's data.
+#[derive(Default, Clone, Copy)]
+struct Channel {
+    aa: f64,
+    ab: f64,
+    al: f64,
+    bl: f64,
+    ll: f64,
+}
+
+/// The sums of every channel, and Σb² (the same in each).
+struct Sums {
+    channels: [Channel; 3],
+    bb: f64,
+}
+
+/// ρ's of one α and their sum of squared residuals.
+struct Solution {
+    rho_d: [f64; 3],
+    rho_s: f64,
+    sse: f64,
+}
+
+impl Sums {
+    fn new(used: &[&WardSample], diffuse: &[f64], specular: &[f64]) -> Sums {
+        let mut s = Sums {
+            channels: [Channel::default(); 3],
+            bb: 0.0,
+        };
+        for ((sample, a), b) in used.iter().zip(diffuse).zip(specular) {
+            s.bb += b * b;
+            for (ch, l) in s.channels.iter_mut().zip(sample.rgb) {
+                ch.aa += a * a;
+                ch.ab += a * b;
+                ch.al += a * l;
+                ch.bl += b * l;
+                ch.ll += l * l;
+            }
+        }
+        s
+    }
+
+    /// Least squares with every ρ ≥ 0: the unconstrained solution, then channels whose ρd
+    /// came out negative held at 0 (and ρs at 0 if it did), re-solved until none is.
+    fn solve(&self) -> Solution {
+        let mut free = [true; 3];
+        let mut rho_d = [0.0; 3];
+        let mut rho_s = 0.0;
+        // ρs is grey: its column is b in every channel, so Σb² counts three times.
+        let bb3 = 3.0 * self.bb;
+        for _ in 0..4 {
+            let (mut num, mut den) = (0.0, bb3);
+            for (ch, free) in self.channels.iter().zip(free) {
+                num += ch.bl;
+                if free && ch.aa > 0.0 {
+                    num -= ch.ab * ch.al / ch.aa;
+                    den -= ch.ab * ch.ab / ch.aa;
+                }
+            }
+            rho_s = if den > 1e-12 * bb3 && num > 0.0 {
+                num / den
+            } else {
+                0.0
+            };
+            let mut changed = false;
+            for ((ch, free), rho) in self.channels.iter().zip(&mut free).zip(&mut rho_d) {
+                *rho = if *free && ch.aa > 0.0 {
+                    (ch.al - rho_s * ch.ab) / ch.aa
+                } else {
+                    0.0
+                };
+                if *rho < 0.0 {
+                    *rho = 0.0;
+                    *free = false;
+                    changed = true;
+                }
+            }
+            if !changed {
+                break;
+            }
+        }
+        let s = rho_s;
+        let sse = self
+            .channels
+            .iter()
+            .zip(rho_d)
+            .map(|(ch, d)| {
+                ch.ll - 2.0 * (d * ch.al + s * ch.bl)
+                    + d * d * ch.aa
+                    + 2.0 * d * s * ch.ab
+                    + s * s * self.bb
+            })
+            .sum::<f64>();
+        Solution { rho_d, rho_s, sse }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    const TUBE: Tube = Tube {
+        height_mm: 60.0,
+        length_mm: 300.0,
+    };
+
+    /// The reflectometer camera: 60° elevation on the −x side, 600 mm away.
+    fn view(x: f64, y: f64) -> ViewPoint {
+        let camera = Vector3::new(-300.0, 0.0, 300.0 * 3f64.sqrt());
+        ViewPoint::seen_from(Vector3::new(x, y, 0.0), camera).expect("above the sample")
+    }
+
+    /// A deterministic normal deviate stream (Box–Muller on a 64-bit LCG).
+    struct Noise(u64);
+    impl Noise {
+        fn uniform(&mut self) -> f64 {
+            self.0 = self
+                .0
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((self.0 >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        }
+        fn normal(&mut self) -> f64 {
+            let (u, v) = (self.uniform(), self.uniform());
+            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+        }
+    }
+
+    /// The default scan (121 stops over 240 mm) of a pixel with these parameters, each value
+    /// with relative noise `noise` plus 0.2 % of the pixel's peak (the sensor's floor).
+    fn scan(
+        v: &ViewPoint,
+        rho_d: [f64; 3],
+        rho_s: f64,
+        alpha: f64,
+        noise: f64,
+        seed: u64,
+    ) -> Vec<WardSample> {
+        let mut rng = Noise(seed);
+        let clean: Vec<(f64, [f64; 3])> = (0..121)
+            .map(|i| {
+                let x = -120.0 + 2.0 * i as f64;
+                let d = TUBE.diffuse(v, x) / std::f64::consts::PI;
+                let s = TUBE.specular(v, x, alpha);
+                (x, rho_d.map(|r| r * d + rho_s * s))
+            })
+            .collect();
+        let peak = clean.iter().flat_map(|(_, c)| *c).fold(0.0f64, f64::max);
+        clean
+            .into_iter()
+            .map(|(x, c)| WardSample {
+                tube_x_mm: x,
+                rgb: c.map(|val| {
+                    val * (1.0 + noise * rng.normal()) + 0.2 * noise * peak * rng.normal()
+                }),
+                saturated: false,
+            })
+            .collect()
+    }
+
+    fn rel(a: f64, b: f64) -> f64 {
+        (a / b - 1.0).abs()
+    }
+
+    #[test]
+    fn glossy_rough_and_matte_pixels_are_recovered_without_noise() {
+        let v = view(3.0, -8.0);
+        let options = WardFitOptions::default();
+        for (rho_d, rho_s, alpha) in [
+            ([0.3, 0.2, 0.1], 0.08, 0.06),
+            ([0.6, 0.55, 0.5], 0.2, 0.3),
+            ([0.05, 0.05, 0.05], 0.04, 0.02),
+        ] {
+            let fit = fit_ward(&TUBE, &v, &scan(&v, rho_d, rho_s, alpha, 0.0, 1), &options)
+                .expect("fits");
+            assert!(fit.flags.is_empty(), "{fit:?}");
+            for (got, truth) in fit.rho_d.iter().zip(rho_d) {
+                assert!(rel(*got, truth) < 1e-4, "{fit:?}");
+            }
+            assert!(
+                rel(fit.rho_s, rho_s) < 1e-4 && rel(fit.alpha, alpha) < 1e-4,
+                "{fit:?}"
+            );
+            assert!(fit.relative_rms < 1e-6, "{fit:?}");
+        }
+        let matte = fit_ward(
+            &TUBE,
+            &v,
+            &scan(&v, [0.7, 0.4, 0.2], 0.0, 0.1, 0.0, 1),
+            &options,
+        )
+        .expect("fits");
+        assert_eq!(matte.flags, vec![WardFlag::NoSpecular], "{matte:?}");
+        assert!(
+            rel(matte.rho_d[0], 0.7) < 1e-6 && matte.rho_s < 1e-9,
+            "{matte:?}"
+        );
+    }
+
+    #[test]
+    fn with_sensor_noise_the_medians_over_a_sample_meet_the_targets() {
+        // The targets: ρd within 2 %, ρs and α within 5 % (median over the sample).
+        let options = WardFitOptions::default();
+        let (rho_d, rho_s, alpha) = ([0.4, 0.3, 0.2], 0.1, 0.1);
+        let mut errors: [Vec<f64>; 3] = Default::default();
+        for k in 0..25 {
+            let v = view(-20.0 + 2.0 * k as f64, 0.5 * k as f64);
+            let fit = fit_ward(
+                &TUBE,
+                &v,
+                &scan(&v, rho_d, rho_s, alpha, 0.01, 7 + k),
+                &options,
+            )
+            .expect("fits");
+            errors[0].push(
+                (0..3)
+                    .map(|c| rel(fit.rho_d[c], rho_d[c]))
+                    .fold(0.0, f64::max),
+            );
+            errors[1].push(rel(fit.rho_s, rho_s));
+            errors[2].push(rel(fit.alpha, alpha));
+        }
+        let median = |e: &mut Vec<f64>| {
+            e.sort_by(f64::total_cmp);
+            e[e.len() / 2]
+        };
+        let (d, s, a) = (
+            median(&mut errors[0]),
+            median(&mut errors[1]),
+            median(&mut errors[2]),
+        );
+        assert!(d < 0.02 && s < 0.05 && a < 0.05, "ρd {d}, ρs {s}, α {a}");
+    }
+
+    #[test]
+    fn a_lobe_narrower_than_the_stop_spacing_is_flagged() {
+        let v = view(0.0, 0.0);
+        // 2 mm stops 60 mm up turn the half vector by about 0.01 rad.
+        let fit = fit_ward(
+            &TUBE,
+            &v,
+            &scan(&v, [0.2; 3], 0.05, 0.004, 0.0, 1),
+            &WardFitOptions {
+                alpha_range: [0.001, 1.0],
+                ..WardFitOptions::default()
+            },
+        )
+        .expect("fits");
+        assert!(
+            fit.flags.contains(&WardFlag::AlphaBelowStopSpacing),
+            "{fit:?}"
+        );
+        assert!(fit.alpha.is_finite() && fit.rho_s.is_finite(), "{fit:?}");
+    }
+
+    #[test]
+    fn a_specular_peak_outside_the_sweep_is_flagged() {
+        // Mirror point at x ≈ 100 + 34.6 mm, beyond the last stop at 120 mm.
+        let v = view(100.0, 0.0);
+        let fit = fit_ward(
+            &TUBE,
+            &v,
+            &scan(&v, [0.3; 3], 0.1, 0.05, 0.0, 1),
+            &WardFitOptions::default(),
+        )
+        .expect("fits");
+        assert!(
+            fit.flags.contains(&WardFlag::SpecularPeakOutsideSweep),
+            "{fit:?}"
+        );
+        assert!(fit.rho_d.iter().all(|r| r.is_finite()) && fit.alpha.is_finite());
+    }
+
+    #[test]
+    fn black_clipped_and_broken_pixels_are_reported() {
+        let v = view(0.0, 0.0);
+        let black = fit_ward(
+            &TUBE,
+            &v,
+            &scan(&v, [0.0; 3], 0.0, 0.1, 0.0, 1),
+            &WardFitOptions::default(),
+        )
+        .expect("a black pixel is a result");
+        assert_eq!(black.flags, vec![WardFlag::Black]);
+        assert_eq!((black.rho_d, black.rho_s), ([0.0; 3], 0.0));
+        // The specular peak clips: the shoulders still carry it.
+        let mut samples = scan(&v, [0.2; 3], 0.1, 0.1, 0.0, 1);
+        let peak = samples.iter().flat_map(|s| s.rgb).fold(0.0f64, f64::max);
+        for s in &mut samples {
+            s.saturated = s.rgb.iter().any(|v| *v > 0.8 * peak);
+        }
+        assert!(samples.iter().filter(|s| s.saturated).count() >= 3);
+        let clipped = fit_ward(&TUBE, &v, &samples, &WardFitOptions::default()).expect("fits");
+        assert_eq!(clipped.flags, vec![WardFlag::Saturated], "{clipped:?}");
+        assert!(
+            rel(clipped.rho_s, 0.1) < 1e-3 && rel(clipped.alpha, 0.1) < 1e-3,
+            "{clipped:?}"
+        );
+        // Too few usable samples, or a broken one: errors that say so.
+        for s in &mut samples {
+            s.saturated = true;
+        }
+        let e = fit_ward(&TUBE, &v, &samples[..10], &WardFitOptions::default())
+            .expect_err("nothing usable");
+        assert!(e.to_string().contains("usable samples"), "{e}");
+        let mut broken = scan(&v, [0.2; 3], 0.1, 0.1, 0.0, 1);
+        broken[4].rgb[1] = f64::NAN;
+        let e = fit_ward(&TUBE, &v, &broken, &WardFitOptions::default()).expect_err("NaN");
+        assert!(e.to_string().contains("not finite"), "{e}");
+    }
+}
