@@ -86,8 +86,8 @@ pub struct WardFit {
 
 /// Least usable samples for a fit (four ρ's and α).
 pub const MIN_SAMPLES: usize = 6;
-const GRID: usize = 20;
-const GOLDEN_STEPS: usize = 24;
+const GRID: usize = 14;
+const GOLDEN_STEPS: usize = 20;
 
 /// Fits a pixel seen at `view` under `tube` to its `samples`. Errors when a sample is not
 /// finite or too few samples are usable; every weaker case is a flag on the result.
@@ -391,7 +391,7 @@ mod tests {
                 rel(fit.rho_s, rho_s) < 1e-4 && rel(fit.alpha, alpha) < 1e-4,
                 "{fit:?}"
             );
-            assert!(fit.relative_rms < 1e-6, "{fit:?}");
+            assert!(fit.relative_rms < 1e-5, "{fit:?}");
         }
         let matte = fit_ward(
             &TUBE,

@@ -27,13 +27,15 @@ const GL_WEIGHTS: [f64; 4] = [
     0.222_381_034_453_374_5,
     0.101_228_536_290_376_3,
 ];
-/// The specular window's half-width in lobe widths (e^−49 beyond).
-const WINDOW_WIDTHS: f64 = 7.0;
-/// Panels per lobe width, and at most this many panels in all.
-const PANELS_PER_WIDTH: f64 = 1.0;
+/// The specular window's half-width in lobe widths (e^−25 beyond).
+const WINDOW_WIDTHS: f64 = 5.0;
+/// Panels per lobe width (8 nodes over two widths integrate the Gaussian-like lobe to
+/// 10⁻⁸), and at most this many panels in all.
+const PANELS_PER_WIDTH: f64 = 0.5;
 const MAX_PANELS: usize = 256;
-/// tan²δ/α² at the tube's closest approach to the mirror point beyond which S is 0.
-const NEGLIGIBLE_EXPONENT: f64 = 50.0;
+/// tan²δ/α² at the tube's closest approach to the mirror point beyond which S is 0
+/// (e^−30 ≈ 10⁻¹³ of the peak).
+const NEGLIGIBLE_EXPONENT: f64 = 30.0;
 
 /// The tube's fixed geometry.
 #[derive(Debug, Clone, Copy, PartialEq)]
