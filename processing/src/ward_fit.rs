@@ -65,6 +65,11 @@ pub enum WardFlag {
     Saturated,
     /// Isotropic Ward does not explain the data (RMS residual above the option's fraction).
     PoorFit,
+    /// Two scans with the sample turned 90° between them disagree on α: the surface is
+    /// anisotropic and isotropic Ward does not describe it (the numbers are the two scans'
+    /// means). One scan cannot tell: the tube integrates the lobe along its length, and any
+    /// lobe's profile across the sweep is matched by some isotropic α.
+    Anisotropic,
 }
 
 /// A pixel's fit.
@@ -189,6 +194,43 @@ pub fn fit_ward(
         samples: used.len(),
         flags,
     })
+}
+
+/// Two scans of the same pixel, the sample turned 90° between them (Gardner et al. scan
+/// twice for this), combined: the means of the two fits, flagged [`WardFlag::Anisotropic`]
+/// when their α differ by more than `tolerance` (relative) and both determined α. Flags of
+/// either scan carry over.
+pub fn combine_turned_scans(a: &WardFit, b: &WardFit, tolerance: f64) -> WardFit {
+    let mut flags: Vec<WardFlag> = a.flags.clone();
+    for f in &b.flags {
+        if !flags.contains(f) {
+            flags.push(*f);
+        }
+    }
+    let undetermined = |f: &WardFit| {
+        f.flags.iter().any(|g| {
+            matches!(
+                g,
+                WardFlag::Black
+                    | WardFlag::NoSpecular
+                    | WardFlag::SpecularPeakOutsideSweep
+                    | WardFlag::AlphaBelowStopSpacing
+            )
+        })
+    };
+    let spread = (a.alpha - b.alpha).abs() / (0.5 * (a.alpha + b.alpha)).max(f64::MIN_POSITIVE);
+    if !undetermined(a) && !undetermined(b) && spread > tolerance {
+        flags.push(WardFlag::Anisotropic);
+    }
+    let mean = |x: f64, y: f64| 0.5 * (x + y);
+    WardFit {
+        rho_d: [0, 1, 2].map(|c| mean(a.rho_d[c], b.rho_d[c])),
+        rho_s: mean(a.rho_s, b.rho_s),
+        alpha: mean(a.alpha, b.alpha),
+        relative_rms: a.relative_rms.max(b.relative_rms),
+        samples: a.samples + b.samples,
+        flags,
+    }
 }
 
 /// Half the angle the tube turns through, seen from the point, between the two stops nearest
@@ -440,6 +482,32 @@ mod tests {
             median(&mut errors[2]),
         );
         assert!(d < 0.02 && s < 0.05 && a < 0.05, "ρd {d}, ρs {s}, α {a}");
+    }
+
+    #[test]
+    fn turned_scans_that_disagree_on_alpha_are_anisotropic_unless_alpha_is_undetermined() {
+        let fit = |alpha: f64, flags: Vec<WardFlag>| WardFit {
+            rho_d: [0.2; 3],
+            rho_s: 0.1,
+            alpha,
+            relative_rms: 0.01,
+            samples: 121,
+            flags,
+        };
+        let same = combine_turned_scans(&fit(0.1, vec![]), &fit(0.105, vec![]), 0.1);
+        assert!(
+            same.flags.is_empty() && (same.alpha - 0.1025).abs() < 1e-12,
+            "{same:?}"
+        );
+        let brushed = combine_turned_scans(&fit(0.05, vec![]), &fit(0.2, vec![]), 0.1);
+        assert_eq!(brushed.flags, vec![WardFlag::Anisotropic]);
+        // A matte scan says nothing about α: no anisotropy claimed, its flag carried.
+        let matte = combine_turned_scans(
+            &fit(0.05, vec![]),
+            &fit(0.9, vec![WardFlag::NoSpecular]),
+            0.1,
+        );
+        assert_eq!(matte.flags, vec![WardFlag::NoSpecular]);
     }
 
     #[test]
