@@ -174,6 +174,23 @@ fn reflectometer() {
         count(&conn, "SELECT count(DISTINCT cart_mm) FROM frames") >= 3,
         "frames along the cart's travel"
     );
+    // A second sweep with the sample turned 90°: the frames record the turn (the simulator
+    // renders the sample so placed), the first sweep's do not.
+    let dir = check_sequence(
+        "reflectometer.rhai",
+        "reflectometer",
+        &[("positions", "4"), ("turned", "true")],
+    );
+    let conn = db(&dir);
+    let turned = "SELECT count(*) FROM frames WHERE fixture_pose LIKE '%\"turn_deg\":90%'";
+    assert_eq!(count(&conn, turned), 4, "the turned sweep's frames");
+    assert_eq!(
+        count(
+            &conn,
+            "SELECT count(*) FROM frames WHERE label LIKE 'scan turned %'"
+        ),
+        4
+    );
 }
 
 #[test]
