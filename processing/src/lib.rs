@@ -44,6 +44,8 @@
 //! | [`ward`] | the isotropic Ward lobe of the reflectometer fit |
 //! | [`ward_tube`] | the reflectometer tube's diffuse and specular integrals at a sample point |
 //! | [`ward_fit`] | a pixel's Ward ρd, ρs and α from its cart sweep, weak cases flagged |
+//! | [`ward_map`] | a camera's Ward maps from a sweep's radiance frames, flag masks |
+//! | [`transparency`] | the sample's transmittance from the backlight frame |
 //! | [`error`] | typed errors |
 #![deny(unsafe_code)]
 
@@ -84,8 +86,10 @@ pub mod rig_frame;
 pub mod run_frames;
 pub mod space_time;
 pub mod surface_products;
+pub mod transparency;
 pub mod ward;
 pub mod ward_fit;
+pub mod ward_map;
 pub mod ward_tube;
 pub mod weight;
 pub mod white_balance;
