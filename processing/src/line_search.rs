@@ -4,12 +4,7 @@
 
 /// The grid point of least `f` among `points` log-spaced points over [`lo`, `hi`] (both > 0),
 /// as (ln x, the grid step in ln x).
-pub(crate) fn log_grid_minimum(
-    f: &impl Fn(f64) -> f64,
-    lo: f64,
-    hi: f64,
-    points: usize,
-) -> (f64, f64) {
+fn log_grid_minimum(f: &impl Fn(f64) -> f64, lo: f64, hi: f64, points: usize) -> (f64, f64) {
     let (llo, lhi) = (lo.ln(), hi.ln());
     let step = (lhi - llo) / (points.max(2) - 1) as f64;
     let best = (0..points.max(2))
@@ -21,7 +16,7 @@ pub(crate) fn log_grid_minimum(
 }
 
 /// The minimum of `f` on [a, b] by `steps` golden-section steps.
-pub(crate) fn golden_section(f: &impl Fn(f64) -> f64, mut a: f64, mut b: f64, steps: usize) -> f64 {
+fn golden_section(f: &impl Fn(f64) -> f64, mut a: f64, mut b: f64, steps: usize) -> f64 {
     let r = 0.5 * (5f64.sqrt() - 1.0);
     let (mut c, mut d) = (b - r * (b - a), a + r * (b - a));
     let (mut fc, mut fd) = (f(c), f(d));

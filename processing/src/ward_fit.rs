@@ -102,6 +102,22 @@ pub fn fit_ward(
     samples: &[WardSample],
     options: &WardFitOptions,
 ) -> Result<WardFit, ProcessingError> {
+    let [lo, hi] = options.alpha_range;
+    if !(lo > 0.0
+        && hi > lo
+        && hi.is_finite()
+        && options.black_level >= 0.0
+        && options.black_level.is_finite()
+        && options.poor_fit_rms > 0.0)
+    {
+        return Err(ProcessingError::IllPosed {
+            what: "Ward fit",
+            why: format!(
+                "the options (α range [{lo}, {hi}], black level {}, poor-fit RMS {}) need an ordered positive α range, a black level of 0 or more and a poor-fit RMS above 0",
+                options.black_level, options.poor_fit_rms
+            ),
+        });
+    }
     if let Some(bad) = samples
         .iter()
         .find(|s| !s.tube_x_mm.is_finite() || s.rgb.iter().any(|v| !v.is_finite()))
@@ -153,7 +169,6 @@ pub fn fit_ward(
             .collect();
         Sums::new(&used, &diffuse, &specular).solve()
     };
-    let [lo, hi] = options.alpha_range;
     let alpha = log_search(&|a: f64| solve(a).sse, lo, hi, GRID, GOLDEN_STEPS);
     let best = solve(alpha);
     let relative_rms = (best.sse.max(0.0) / data_sq.max(f64::MIN_POSITIVE)).sqrt();
@@ -585,5 +600,13 @@ mod tests {
         broken[4].rgb[1] = f64::NAN;
         let e = fit_ward(&TUBE, &v, &broken, &WardFitOptions::default()).expect_err("NaN");
         assert!(e.to_string().contains("not finite"), "{e}");
+        for alpha_range in [[0.0, 1.0], [0.5, 0.1], [0.01, f64::INFINITY]] {
+            let bad = WardFitOptions {
+                alpha_range,
+                ..WardFitOptions::default()
+            };
+            let e = fit_ward(&TUBE, &v, &samples, &bad).expect_err("bad options");
+            assert!(e.to_string().contains("ordered positive α range"), "{e}");
+        }
     }
 }

@@ -13,7 +13,8 @@ use crate::ward_tube::{Tube, ViewPoint};
 
 /// Flag bit of a pixel whose ray misses the sample plane (or cannot be undistorted).
 pub const UNSEEN: u16 = 1 << 14;
-/// Flag bit of a pixel whose fit was refused (too few unclipped samples); its numbers are 0.
+/// Flag bit of a pixel whose fit was refused (too few unclipped samples; every sample is
+/// finite by then); its numbers are 0.
 pub const REFUSED: u16 = 1 << 15;
 
 impl WardFlag {
@@ -71,7 +72,8 @@ impl WardMaps {
 
 /// Fits every pixel of `camera` (`width × height`) to `frames`. `tube_rgb` is the tube's
 /// intensity per millimetre in each channel, in the frames' radiance units (its calibration),
-/// so each sample is radiance over it. Errors on frames of the wrong size or a bad intensity.
+/// so each sample is radiance over it. Errors, naming the frame and pixel, on frames of the
+/// wrong size or holding a value that is not finite, and on a bad intensity.
 pub fn ward_maps(
     tube: &Tube,
     camera: &CameraGeometry,
@@ -97,6 +99,22 @@ pub fn ward_maps(
                 f.tube_x_mm,
                 f.rgb.len(),
                 n * 3
+            )));
+        }
+        if !f.tube_x_mm.is_finite() {
+            return Err(ill(format!(
+                "frame {k}'s tube position {} is not a number",
+                f.tube_x_mm
+            )));
+        }
+        if let Some(i) = f.rgb.iter().position(|v| !v.is_finite()) {
+            return Err(ill(format!(
+                "frame {k} (tube at {} mm): pixel ({}, {}) channel {} is {}; check the frame and its response calibration",
+                f.tube_x_mm,
+                (i / 3) % width,
+                (i / 3) / width,
+                i % 3,
+                f.rgb[i]
             )));
         }
     }
@@ -286,5 +304,22 @@ mod tests {
         )
         .expect_err("no intensity");
         assert!(e.to_string().contains("calibrate it"), "{e}");
+        let mut broken = images[3].clone();
+        broken[(2 * w + 5) * 3 + 1] = f32::NAN;
+        let mut with_nan = frames.clone();
+        with_nan[3].rgb = &broken;
+        let e = ward_maps(
+            &tube,
+            &cam,
+            (w, h),
+            &with_nan,
+            tube_rgb,
+            &WardFitOptions::default(),
+        )
+        .expect_err("a NaN in a frame");
+        assert!(
+            e.to_string().contains("frame 3") && e.to_string().contains("pixel (5, 2) channel 1"),
+            "{e}"
+        );
     }
 }

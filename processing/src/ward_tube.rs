@@ -119,14 +119,14 @@ impl Tube {
         }
         let panels = (((hi - lo) / width * PANELS_PER_WIDTH).ceil() as usize).clamp(4, MAX_PANELS);
         let step = (hi - lo) / panels as f64;
+        let h2 = (self.height_mm - view.p.z).powi(2);
         let integrand = |l: f64| {
             let v = q(l) - view.p;
             let r2 = v.norm_squared();
             let Some(wi) = v.try_normalize(1e-12) else {
                 return 0.0;
             };
-            let h = self.height_mm - view.p.z;
-            h * h / (r2 * r2) * ward_iso(&n, &wi, &view.wo, alpha)
+            h2 / (r2 * r2) * ward_iso(&n, &wi, &view.wo, alpha)
         };
         let mut sum = 0.0;
         for k in 0..panels {
