@@ -637,14 +637,22 @@ impl Conn {
     }
 }
 
-/// A status report damaged on its own line: it opens with `<` and holds no other report (no
-/// second `<`, no `>` before its end), so no other reply was mixed into it.
+/// Words that open a GRBL reply other than a status report.
+const REPLY_WORDS: [&str; 5] = ["ok", "error", "ALARM", "[", "Grbl"];
+
+/// A status report damaged on its own line: it opens with `<`, holds no second report (no
+/// second `<`) and no other reply after a stray `>` (a byte of the report garbled into `>`, as
+/// the real firmware did on a loaded host, is damage; `>ok` is an `ok` run into the report).
 fn is_damaged_status(text: &str) -> bool {
     let Some(body) = text.strip_prefix('<') else {
         return false;
     };
     let body = body.strip_suffix('>').unwrap_or(body);
-    !body.contains(['<', '>'])
+    if body.contains('<') {
+        return false;
+    }
+    body.split_once('>')
+        .is_none_or(|(_, after)| !REPLY_WORDS.iter().any(|w| after.contains(w)))
 }
 
 #[cfg(test)]
@@ -683,6 +691,8 @@ pub(super) mod tests {
             "<Run|MPos:-0.998,-12.495,-0.998|FS:1200,0,",
             "<Idle|MPos:1.000,2.0%0,3.000|FS:0,0>",
             "<",
+            // Seen on the real firmware in CI: a digit of the report garbled into `>`.
+            "<Run|MPos:-0.9>8,-150.666,-0.998|FS:194,0>",
         ] {
             let reply = parse_line(damaged);
             assert!(matches!(reply, Reply::Other(_)), "{damaged}");
