@@ -47,6 +47,10 @@ const MOVE_PROGRESS_S: f64 = 5.0;
 /// Interval of status polls while a move or a feed hold runs (GRBL's documentation asks for
 /// no more than 5–10 Hz); concurrent waits share a report this fresh.
 const POLL_S: f64 = 0.1;
+
+/// How many deceleration times a stop waits for a hold that is visibly slowing the axes before
+/// it resets anyway.
+const HOLD_GRACE: f64 = 4.0;
 /// Polls in a row reporting Idle away from the target before a move is declared lost.
 const IDLE_AWAY_POLLS: u32 = 10;
 /// Keepalive period: notices a dead port while nobody talks.
@@ -511,7 +515,12 @@ impl GrblController {
                 return Ok(c.to_deg(idx, s.pos[idx]));
             }
             c.send_realtime(Realtime::FeedHold).await?;
-            let deadline = Instant::now() + duration_s(decel_timeout_s);
+            let start = Instant::now();
+            let deadline = start + duration_s(decel_timeout_s);
+            // A controller that acknowledged the hold (`Hold:1`) and is still slowing down gets
+            // longer: a reset while it decelerates would lose the position. A slow board (or a
+            // loaded host running a simulated one) decelerates in more wall time.
+            let last_chance = start + duration_s(HOLD_GRACE * decel_timeout_s);
             let mut last: Option<[f64; 3]> = None;
             let mut still = 0;
             loop {
@@ -534,7 +543,9 @@ impl GrblController {
                             | State::Sleep
                             | State::Check
                     );
-                if held || Instant::now() >= deadline {
+                let now = Instant::now();
+                let slowing = matches!(s.state, State::Hold(_)) && last.is_some_and(|p| p != s.pos);
+                if held || now >= last_chance || (now >= deadline && !slowing) {
                     break;
                 }
                 last = Some(s.pos);

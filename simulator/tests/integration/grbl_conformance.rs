@@ -512,11 +512,13 @@ fn the_emulator_answers_every_exchange_as_the_real_firmware_does() {
     let mut failures = Vec::new();
     let mut ran = 0;
     for ex in EXCHANGES {
-        // grbl-sim now and then loses motion or garbles a report under load; a difference
-        // counts only if a fresh board shows it again.
+        // grbl-sim now and then loses motion or garbles a report under load (seen in CI: a
+        // resumed move ending Idle 5 units short, twice in a row); a difference counts only if
+        // two fresh boards show it again. An emulator's difference shows every time.
         let mut outcome = compare(ex);
-        if let Some(Err(diff)) = &outcome {
-            eprintln!("retrying once on a fresh board:\n{diff}");
+        for _ in 0..2 {
+            let Some(Err(diff)) = &outcome else { break };
+            eprintln!("retrying on a fresh board:\n{diff}");
             outcome = compare(ex);
         }
         match outcome {

@@ -43,6 +43,9 @@ struct Script {
     cut_status: bool,
     /// Stop answering anything.
     mute: bool,
+    /// Seconds a feed hold takes to bring a move to rest (`Hold:1`, still moving), as a slow
+    /// board decelerates; 0: at once.
+    hold_decel_s: f64,
 }
 
 impl Default for Script {
@@ -57,6 +60,7 @@ impl Default for Script {
             garbage_on_status: false,
             cut_status: false,
             mute: false,
+            hold_decel_s: 0.0,
         }
     }
 }
@@ -83,6 +87,8 @@ struct Machine {
     segs: Vec<Seg>,
     alarm: bool,
     hold: bool,
+    /// A feed hold still decelerating: the motion comes to rest at this instant.
+    hold_until: Option<Instant>,
     alarm_at: Option<(Instant, u32)>,
 }
 
@@ -111,6 +117,14 @@ impl Machine {
     fn freeze(&mut self, now: Instant) {
         self.base = self.pos(now);
         self.segs.clear();
+        self.hold_until = None;
+    }
+
+    /// Completes a decelerating hold whose time has come.
+    fn settle_hold(&mut self, now: Instant) {
+        if let Some(t) = self.hold_until.filter(|&t| t <= now) {
+            self.freeze(t);
+        }
     }
 
     fn end(&self) -> (Instant, [f64; 3]) {
@@ -226,6 +240,7 @@ async fn run_fake(mut port: DeviceEnd, script: Arc<Mutex<Script>>, seen: Arc<Mut
         segs: Vec::new(),
         alarm: script.lock().unwrap().homing_lock,
         hold: false,
+        hold_until: None,
         alarm_at: None,
     };
     let mut line = Vec::new();
@@ -253,6 +268,7 @@ async fn run_fake(mut port: DeviceEnd, script: Arc<Mutex<Script>>, seen: Arc<Mut
         let mut send = |text: &str| out.push_str(text);
         for &b in &buf[..n] {
             let now = Instant::now();
+            m.settle_hold(now);
             match b {
                 0x18 => {
                     line.clear();
@@ -266,7 +282,9 @@ async fn run_fake(mut port: DeviceEnd, script: Arc<Mutex<Script>>, seen: Arc<Mut
                         seen.laser_on = false;
                     }
                     send(&format!("\r\n{}\r\n", s.banner));
-                    if was_moving && !m.hold {
+                    // A reset while the axes move (a hold still decelerating included) loses
+                    // the position.
+                    if was_moving {
                         m.alarm = true;
                         send("ALARM:3\r\n");
                     }
@@ -289,6 +307,8 @@ async fn run_fake(mut port: DeviceEnd, script: Arc<Mutex<Script>>, seen: Arc<Mut
                     }
                     let state = if m.alarm {
                         "Alarm"
+                    } else if m.hold_until.is_some() {
+                        "Hold:1"
                     } else if m.hold {
                         "Hold:0"
                     } else if m.moving(now) {
@@ -305,8 +325,13 @@ async fn run_fake(mut port: DeviceEnd, script: Arc<Mutex<Script>>, seen: Arc<Mut
                     ));
                 }
                 b'!' => {
-                    if m.moving(now) {
-                        m.freeze(now);
+                    if m.moving(now) && !m.hold {
+                        let decel = script.lock().unwrap().hold_decel_s;
+                        if decel > 0.0 {
+                            m.hold_until = Some(now + Duration::from_secs_f64(decel));
+                        } else {
+                            m.freeze(now);
+                        }
                         m.alarm_at = None;
                         m.hold = true;
                     }

@@ -2,10 +2,11 @@
 //! mid-move, a stop mid-move. The fake's motion runs on the paused clock, so where a move is
 //! at a given instant is exact.
 
+use std::sync::Arc;
 use std::time::Duration;
 
 use stagehand_devices::axis::{AxisDriver, AxisHandle};
-use stagehand_devices::grbl::GrblAxis;
+use stagehand_devices::grbl::{GrblAxis, GrblController};
 use stagehand_devices::{DeviceError, DeviceErrorKind};
 use tokio::time::Instant;
 
@@ -133,4 +134,43 @@ async fn stop_during_a_move_keeps_the_position() {
     assert!(ctl.is_homed('X').await);
     assert_near(x.position().await.unwrap(), p);
     assert!((x.move_to(p + 5.0).await.unwrap() - (p + 5.0)).abs() < 1e-3);
+}
+
+/// Starts a long move (10°/s towards 300°) on a fake whose feed hold takes `decel_s` to bring
+/// the axis to rest, stops it after 2 s, and returns the fake, the controller and the stopped position.
+async fn stop_on_a_slow_hold(decel_s: f64) -> (Fake, Arc<GrblController>, f64) {
+    let fake = Fake::start(Script {
+        speed: 10.0,
+        hold_decel_s: decel_s,
+        ..Script::default()
+    });
+    let ctl = fake.controller();
+    let mut x = GrblAxis::new(ctl.clone(), &axis("turntable", "X")).unwrap();
+    x.home().await.unwrap();
+    let mut mover = GrblAxis::new(ctl.clone(), &axis("turntable", "X")).unwrap();
+    let moving = tokio::spawn(async move { mover.move_to(300.0).await });
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let p = x.stop().await.unwrap();
+    assert!(moving.await.unwrap().is_err());
+    (fake, ctl, p)
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_stop_waits_for_a_hold_that_is_still_slowing_down() {
+    // The axis' deceleration time is 30°/s ÷ 60°/s² × 1.5 + 1 s = 1.75 s; this board takes 3 s.
+    let (_fake, ctl, p) = stop_on_a_slow_hold(3.0).await;
+    // Reset in Hold:0, after the axis came to rest 3 s after the hold (at 10°/s from 20°).
+    assert!(ctl.is_homed('X').await, "a slow hold keeps the position");
+    assert_near(p, 50.0);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_hold_that_never_ends_is_reset_after_four_deceleration_times() {
+    let (_fake, ctl, p) = stop_on_a_slow_hold(60.0).await;
+    // Reset while still moving, 4 × 1.75 s after the hold: GRBL's ALARM:3, homing lost.
+    assert!(
+        !ctl.is_homed('X').await,
+        "a reset in motion loses the position"
+    );
+    assert!(p > 80.0 && p < 100.0, "stopped at {p}");
 }
