@@ -22,6 +22,7 @@ fn main() {
     let tube = Tube {
         height_mm: 60.0,
         length_mm: 300.0,
+        radius_mm: 13.0,
     };
     let camera = Vector3::new(-300.0, 0.0, 300.0 * 3f64.sqrt());
     let materials = [

@@ -26,6 +26,9 @@ pub enum CalibrationKind {
     Geometry,
     /// Laser planes per laser position.
     LaserPlanes,
+    /// The reflectometer's tube intensity and backlight panel radiance per camera, from a
+    /// reference sample.
+    Reflectometer,
 }
 
 impl CalibrationKind {
@@ -36,6 +39,7 @@ impl CalibrationKind {
             CalibrationKind::Colour => "colour",
             CalibrationKind::Geometry => "geometry",
             CalibrationKind::LaserPlanes => "laser-planes",
+            CalibrationKind::Reflectometer => "reflectometer",
         }
     }
 }

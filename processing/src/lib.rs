@@ -78,6 +78,8 @@ pub mod mdf_products;
 pub mod nominal_geometry;
 pub mod ray_plane;
 pub mod rectify;
+pub mod reflectometer_calibration;
+pub mod reflectometer_products;
 pub mod response_calibration;
 pub mod response_curve;
 pub mod response_samples;

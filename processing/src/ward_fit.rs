@@ -51,7 +51,8 @@ impl Default for WardFitOptions {
 pub enum WardFlag {
     /// Nothing above the black level: every ρ is 0 and α means nothing.
     Black,
-    /// No specular light found (ρs ≈ 0): α is not determined.
+    /// No specular light found (ρs ≈ 0, or a lobe no stronger than the noise): α is not
+    /// determined.
     NoSpecular,
     /// The mirror direction meets the tube outside the sweep (or beyond the tube's ends): the
     /// specular peak was never seen, so ρs and α rest on a tail.
@@ -91,6 +92,10 @@ pub struct WardFit {
 
 /// Least usable samples for a fit (four ρ's and α).
 pub const MIN_SAMPLES: usize = 6;
+/// Least F statistic of a specular lobe (its two parameters against the residual's variance)
+/// for the fit to report one: well above the 1 %-level critical value (about 4.6), so that
+/// noise on a matte sample is not read as a faint lobe.
+const MIN_LOBE_F: f64 = 10.0;
 const GRID: usize = 14;
 const GOLDEN_STEPS: usize = 20;
 
@@ -188,7 +193,17 @@ pub fn fit_ward(
     if !peak_seen {
         flags.push(WardFlag::SpecularPeakOutsideSweep);
     }
-    if best.rho_s <= 0.0 || specular_peak < 1e-3 * diffuse_peak.max(options.black_level) {
+    // Does the lobe explain more than noise would? The F statistic of adding ρs and α to a
+    // diffuse-only fit, over the 3 channels' samples.
+    let diffuse_only = Sums::new(&used, &diffuse, &vec![0.0; used.len()]).solve();
+    let dof = (3 * used.len()).saturating_sub(5).max(1) as f64;
+    let lobe_f = (diffuse_only.sse - best.sse).max(0.0)
+        / 2.0
+        / (best.sse.max(0.0) / dof).max(f64::MIN_POSITIVE);
+    if best.rho_s <= 0.0
+        || specular_peak < 1e-3 * diffuse_peak.max(options.black_level)
+        || lobe_f < MIN_LOBE_F
+    {
         flags.push(WardFlag::NoSpecular);
     } else {
         if alpha < stop_angle(tube, view, samples, mirror_x) {
@@ -362,13 +377,15 @@ impl Sums {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use nalgebra::Vector3;
 
-    const TUBE: Tube = Tube {
+    /// The reflectometer rig's tube.
+    pub(crate) const TUBE: Tube = Tube {
         height_mm: 60.0,
         length_mm: 300.0,
+        radius_mm: 13.0,
     };
 
     /// The reflectometer camera: 60° elevation on the −x side, 600 mm away.

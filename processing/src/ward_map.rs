@@ -3,12 +3,15 @@
 //! in radiance over the tube's calibrated intensity per millimetre, are fitted by
 //! [`fit_ward`] on every core. Every pixel gets numbers and a flag mask; nothing is left NaN.
 
+use nalgebra::Vector3;
 use rayon::prelude::*;
 
 use crate::calibrate_geometry::CameraGeometry;
 use crate::error::ProcessingError;
 use crate::ray_plane::pixel_ray;
-use crate::ward_fit::{WardFitOptions, WardFlag, WardSample, fit_ward};
+use crate::ward_fit::{
+    WardFit, WardFitOptions, WardFlag, WardSample, combine_turned_scans, fit_ward,
+};
 use crate::ward_tube::{Tube, ViewPoint};
 
 /// Flag bit of a pixel whose ray misses the sample plane (or cannot be undistorted).
@@ -17,7 +20,31 @@ pub const UNSEEN: u16 = 1 << 14;
 /// finite by then); its numbers are 0.
 pub const REFUSED: u16 = 1 << 15;
 
+/// Flag bit of a pixel whose point of the sample the turned scan did not see (its numbers are
+/// the first scan's alone, and anisotropy was not tested).
+pub const NOT_TURNED: u16 = 1 << 13;
+
+/// Every [`WardFlag`], in bit order.
+const WARD_FLAGS: [WardFlag; 8] = [
+    WardFlag::Black,
+    WardFlag::NoSpecular,
+    WardFlag::SpecularPeakOutsideSweep,
+    WardFlag::AlphaBelowStopSpacing,
+    WardFlag::AlphaAtSearchEnd,
+    WardFlag::Saturated,
+    WardFlag::PoorFit,
+    WardFlag::Anisotropic,
+];
+
 impl WardFlag {
+    /// The flags set in `mask`.
+    pub fn from_mask(mask: u16) -> Vec<WardFlag> {
+        WARD_FLAGS
+            .into_iter()
+            .filter(|f| mask & f.bit() != 0)
+            .collect()
+    }
+
     /// This flag's bit in a [`WardMaps`] flag mask.
     pub fn bit(self) -> u16 {
         1 << match self {
@@ -68,6 +95,77 @@ impl WardMaps {
     pub fn count(&self, bit: u16) -> usize {
         self.flags.iter().filter(|f| **f & bit != 0).count()
     }
+
+    /// Pixel `i`'s fit.
+    fn fit(&self, i: usize) -> WardFit {
+        WardFit {
+            rho_d: [0, 1, 2].map(|c| f64::from(self.rho_d[i * 3 + c])),
+            rho_s: f64::from(self.rho_s[i]),
+            alpha: f64::from(self.alpha[i]),
+            relative_rms: f64::from(self.relative_rms[i]),
+            samples: 0,
+            flags: WardFlag::from_mask(self.flags[i]),
+        }
+    }
+
+    /// Sets pixel `i` to `fit`, keeping its bits outside the Ward flags.
+    fn set(&mut self, i: usize, fit: &WardFit) {
+        for c in 0..3 {
+            self.rho_d[i * 3 + c] = fit.rho_d[c] as f32;
+        }
+        self.rho_s[i] = fit.rho_s as f32;
+        self.alpha[i] = fit.alpha as f32;
+        self.relative_rms[i] = fit.relative_rms as f32;
+        let others = self.flags[i] & !WARD_FLAGS.iter().fold(0, |m, f| m | f.bit());
+        self.flags[i] = others | fit.flags.iter().fold(0, |m, f| m | f.bit());
+    }
+}
+
+/// The maps of a scan and of a second scan of the same camera with the sample turned by
+/// `turn_deg` about its normal (z through the origin) since, combined per point of the sample
+/// ([`combine_turned_scans`]: means, [`WardFlag::Anisotropic`] where the two α differ by more
+/// than `tolerance`), on the first scan's pixels. A pixel finds its point in the turned scan
+/// by projecting the point, turned, into the camera (nearest pixel); where that pixel saw no
+/// fit, it keeps the first scan's and is flagged [`NOT_TURNED`].
+pub fn combine_turned_maps(
+    first: &WardMaps,
+    turned: &WardMaps,
+    camera: &CameraGeometry,
+    turn_deg: f64,
+    tolerance: f64,
+) -> WardMaps {
+    let (s, c) = turn_deg.to_radians().sin_cos();
+    let mut out = first.clone();
+    let (w, h) = (first.width, first.height);
+    for i in 0..w * h {
+        if first.flags[i] & (UNSEEN | REFUSED) != 0 {
+            continue;
+        }
+        let j = pixel_view(camera, (i % w, i / w)).and_then(|v| {
+            let p = Vector3::new(c * v.p.x - s * v.p.y, s * v.p.x + c * v.p.y, v.p.z);
+            let px = camera.model.project(&camera.rig_to_camera, &p)?;
+            let (x, y) = (px.x.round(), px.y.round());
+            let inside =
+                x >= 0.0 && y >= 0.0 && x < turned.width as f64 && y < turned.height as f64;
+            inside.then(|| y as usize * turned.width + x as usize)
+        });
+        match j.filter(|j| turned.flags[*j] & (UNSEEN | REFUSED) == 0) {
+            Some(j) => out.set(
+                i,
+                &combine_turned_scans(&first.fit(i), &turned.fit(j), tolerance),
+            ),
+            None => out.flags[i] |= NOT_TURNED,
+        }
+    }
+    out
+}
+
+/// Where pixel `(x, y)`'s ray meets the sample plane (z = 0) and the direction back to the
+/// camera; `None` when it misses the plane from above or cannot be undistorted.
+pub fn pixel_view(camera: &CameraGeometry, (x, y): (usize, usize)) -> Option<ViewPoint> {
+    pixel_ray(&camera.model, &camera.rig_to_camera, (x as f64, y as f64))
+        .and_then(|(c, d)| (d.z < -1e-9).then(|| (c, c - d * (c.z / d.z))))
+        .and_then(|(c, p)| ViewPoint::seen_from(p, c))
 }
 
 /// Fits every pixel of `camera` (`width × height`) to `frames`. `tube_rgb` is the tube's
@@ -121,15 +219,13 @@ pub fn ward_maps(
     let pixels: Vec<(u16, [f32; 6])> = (0..n)
         .into_par_iter()
         .map(|i| {
-            let (x, y) = ((i % width) as f64, (i / width) as f64);
-            let Some(view) = pixel_ray(&camera.model, &camera.rig_to_camera, (x, y))
-                .and_then(|(c, d)| (d.z < -1e-9).then(|| (c, c - d * (c.z / d.z))))
-                .and_then(|(c, p)| ViewPoint::seen_from(p, c))
-            else {
+            let Some(view) = pixel_view(camera, (i % width, i / width)) else {
                 return (UNSEEN, [0.0; 6]);
             };
+            // Stops where the tube stands between the point and the camera show the tube.
             let samples: Vec<WardSample> = frames
                 .iter()
+                .filter(|f| !tube.hides(&view, f.tube_x_mm))
                 .map(|f| WardSample {
                     tube_x_mm: f.tube_x_mm,
                     rgb: [0, 1, 2].map(|c| f64::from(f.rgb[i * 3 + c]) / tube_rgb[c]),
@@ -172,13 +268,13 @@ pub fn ward_maps(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::camera_model::Distortion;
     use crate::nominal_geometry::{NominalCamera, nominal_geometry};
 
     /// The reflectometer rig's camera, shrunk to 32×24.
-    fn camera() -> CameraGeometry {
+    pub(crate) fn camera() -> CameraGeometry {
         nominal_geometry(&NominalCamera {
             id: "cam1".into(),
             width: 32,
@@ -198,6 +294,7 @@ mod tests {
         let tube = Tube {
             height_mm: 60.0,
             length_mm: 300.0,
+            radius_mm: 13.0,
         };
         let cam = camera();
         let (w, h) = (32usize, 24usize);
@@ -321,5 +418,43 @@ mod tests {
             e.to_string().contains("frame 3") && e.to_string().contains("pixel (5, 2) channel 1"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn a_turned_scan_that_disagrees_flags_anisotropy_per_point_of_the_sample() {
+        let cam = camera();
+        let (w, h) = (32usize, 24usize);
+        let maps = |alpha: f32| WardMaps {
+            width: w,
+            height: h,
+            rho_d: vec![0.3; w * h * 3],
+            rho_s: vec![0.1; w * h],
+            alpha: vec![alpha; w * h],
+            relative_rms: vec![0.01; w * h],
+            flags: vec![0; w * h],
+        };
+        let mut turned = maps(0.2);
+        // The turned scan saw nothing at the pixel where the centre's point went.
+        let centre = 12 * w + 16;
+        let went = pixel_view(&cam, (16, 12))
+            .and_then(|v| {
+                let p = Vector3::new(-v.p.y, v.p.x, 0.0);
+                cam.model.project(&cam.rig_to_camera, &p)
+            })
+            .expect("projects");
+        let j = went.y.round() as usize * w + went.x.round() as usize;
+        turned.flags[j] = UNSEEN;
+        let combined = combine_turned_maps(&maps(0.1), &turned, &cam, 90.0, 0.25);
+        assert_ne!(combined.flags[centre] & NOT_TURNED, 0);
+        assert_eq!(combined.alpha[centre], 0.1, "the first scan's alone");
+        // Elsewhere in the middle: both scans, α averaged, anisotropic.
+        let other = 10 * w + 14;
+        assert_eq!(combined.flags[other], WardFlag::Anisotropic.bit());
+        assert!((combined.alpha[other] - 0.15).abs() < 1e-6);
+        // The view is wider than tall: a quarter turn takes its corners out of view.
+        assert_ne!(combined.flags[0] & NOT_TURNED, 0);
+        // Scans that agree flag nothing.
+        let same = combine_turned_maps(&maps(0.1), &maps(0.11), &cam, 90.0, 0.25);
+        assert_eq!(same.flags[other], 0);
     }
 }

@@ -44,6 +44,9 @@ pub struct Tube {
     pub height_mm: f64,
     /// Length of the emitting tube, mm.
     pub length_mm: f64,
+    /// Radius of its glass, mm: the camera cannot see a point whose ray passes the tube's axis
+    /// closer than this.
+    pub radius_mm: f64,
 }
 
 /// A sample point and the direction to the camera that sees it.
@@ -70,7 +73,29 @@ impl ViewPoint {
     }
 }
 
+/// How far beyond the glass a ray must pass for its point to count as seen (a pixel's
+/// footprint and the glass's rim), mm.
+const HIDE_MARGIN_MM: f64 = 2.0;
+
 impl Tube {
+    /// Whether the tube at `tube_x` stands between the point and the camera (within
+    /// [`HIDE_MARGIN_MM`] of its glass): such a sample shows the tube, not the sample.
+    pub fn hides(&self, view: &ViewPoint, tube_x: f64) -> bool {
+        let h = self.height_mm - view.p.z;
+        if view.wo.z <= 0.0 || h <= 0.0 {
+            return false;
+        }
+        // The axis is parallel to y: the distance between the ray and the axis is the
+        // distance in the xz-plane from the axis to the ray's projection.
+        let (dx, dz) = (view.wo.x, view.wo.z);
+        let along = (dx * dx + dz * dz).sqrt();
+        let distance = ((tube_x - view.p.x) * dz - h * dx).abs() / along;
+        // Where the ray passes the axis' height: within the tube's length?
+        let y = view.p.y + view.wo.y * h / dz;
+        distance < self.radius_mm + HIDE_MARGIN_MM
+            && y.abs() <= 0.5 * self.length_mm + self.radius_mm
+    }
+
     /// D: the diffuse integral ∫ h²/r⁴ dl over the tube at `tube_x` (closed form).
     pub fn diffuse(&self, view: &ViewPoint, tube_x: f64) -> f64 {
         let h = self.height_mm - view.p.z;
@@ -150,6 +175,7 @@ mod tests {
         let tube = Tube {
             height_mm: 60.0,
             length_mm: 300.0,
+            radius_mm: 13.0,
         };
         let camera = Vector3::new(-300.0, 0.0, 300.0 * 3f64.sqrt());
         let view = ViewPoint::seen_from(Vector3::new(5.0, -12.0, 0.0), camera).expect("above");
@@ -182,6 +208,38 @@ mod tests {
     }
 
     #[test]
+    fn the_tube_hides_the_points_whose_ray_passes_its_glass() {
+        let (tube, view) = setup();
+        // The ray reaches the tube's height at `crossing`, and passes a tube Δx from there
+        // at Δx·sin θ, θ its elevation in the xz-plane (about 60°); glass 13 mm + 2 mm margin.
+        let crossing = view.p.x + view.wo.x * 60.0 / view.wo.z;
+        let sin = view.wo.z / view.wo.x.hypot(view.wo.z);
+        assert!(tube.hides(&view, crossing));
+        assert!(
+            tube.hides(&view, crossing + 14.5 / sin),
+            "14.5 mm: inside glass + margin"
+        );
+        assert!(!tube.hides(&view, crossing - 15.5 / sin), "15.5 mm: clear");
+        assert!(
+            !tube.hides(&view, view.p.x + 34.64),
+            "the mirror side is clear"
+        );
+        let short = Tube {
+            length_mm: 10.0,
+            ..tube
+        };
+        let aside = ViewPoint::seen_from(
+            Vector3::new(5.0, 60.0, 0.0),
+            Vector3::new(-300.0, 60.0, 520.0),
+        )
+        .expect("above");
+        assert!(
+            !short.hides(&aside, aside.p.x + aside.wo.x * 60.0 / aside.wo.z),
+            "beyond its end"
+        );
+    }
+
+    #[test]
     fn the_integrals_match_a_fine_midpoint_sum() {
         let (tube, view) = setup();
         let (xm, _) = view.mirror_point(tube.height_mm);
@@ -209,6 +267,7 @@ mod tests {
         let tube = Tube {
             height_mm: 60.0,
             length_mm: 300.0,
+            radius_mm: 13.0,
         };
         // Seen from far along +y: the mirror point lies beyond the tube's −y end.
         let view =

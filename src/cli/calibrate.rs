@@ -57,6 +57,10 @@ pub enum CalibrateCommand {
     /// Each laser position's sheet from the two-height planes fixture under the laser
     /// (sequences/mdf_laser.rhai's calibration frames), through a geometry calibration.
     LaserPlanes(super::calibrate_laser_planes::LaserPlanesArgs),
+    /// The reflectometer's tube intensity and backlight panel radiance per camera, from a
+    /// reflectometer run over a reference sample of known albedo and transmittance
+    /// (sequences/reflectometer.rhai with `--set sample=opal_reference`).
+    Reflectometer(super::calibrate_reflectometer::ReflectometerArgs),
 }
 
 /// Subcommands of `stagehand calibrations`.
@@ -183,6 +187,7 @@ pub fn calibrate(command: CalibrateCommand) -> Result<i32, SessionError> {
         }
         CalibrateCommand::Colour(args) => super::calibrate_colour::run(args),
         CalibrateCommand::LaserPlanes(args) => super::calibrate_laser_planes::run(args),
+        CalibrateCommand::Reflectometer(args) => super::calibrate_reflectometer::run(args),
     }
 }
 

@@ -67,9 +67,9 @@ pub fn nominal_camera(cam: &stagehand_devices::rig::CameraSpec) -> NominalCamera
     }
 }
 
-/// Each camera's geometry: from calibration `id` (which must cover every camera of `rig`), or
-/// nominal from the rig file.
-fn geometry(
+/// Each camera's geometry: from calibration `id` (which must cover `cameras`), or nominal
+/// from the rig file.
+pub(super) fn camera_geometry(
     rig: &RigSpec,
     cameras: &[String],
     id: Option<&str>,
@@ -102,7 +102,7 @@ pub fn run(args: ColourArgs) -> Result<i32, SessionError> {
     let responses: ResponseSet = response
         .result(CalibrationKind::Response)
         .map_err(store_err)?;
-    let geometry = geometry(&rig, &cameras, args.geometry.as_deref(), &root)?;
+    let geometry = camera_geometry(&rig, &cameras, args.geometry.as_deref(), &root)?;
     let (size_mm, size_from) = match (args.chart_mm, manifest.sim.as_ref()) {
         (Some(mm), _) => (mm, "--chart-mm"),
         (None, Some(sim)) => (sim.sample_size_mm, "the rig's [sim] sample_size_mm"),

@@ -4,6 +4,7 @@ mod calibrate;
 mod calibrate_colour;
 mod calibrate_geometry;
 mod calibrate_laser_planes;
+mod calibrate_reflectometer;
 mod devices;
 mod operator;
 mod process;

@@ -29,7 +29,14 @@ use stagehand_processing::run_frames::{bracket_keys, open_run};
 use stagehand_processing::space_time::SpaceTimeOptions;
 use stagehand_processing::surface_products::{SurfaceSummary, surface_products};
 
+use stagehand_processing::reflectometer_calibration::SourceCalibration;
+use stagehand_processing::reflectometer_products::{
+    NOMINAL, ReflectometerSetup, ReflectometerSummary, reflectometer_products,
+};
+use stagehand_processing::ward_fit::WardFitOptions;
+
 use super::calibrate::{processing_err, root_of, run_rig, store_err};
+use super::calibrate_reflectometer::ReflectometerRig;
 use crate::session::SessionError;
 
 /// The products `process` can make.
@@ -58,6 +65,16 @@ pub enum Product {
     /// map (`products/height/height.exr`), a normal map (`normal/normal.exr`) and a point
     /// cloud (`cloud/sample.ply`). Makes the depth images and MDFs first.
     Surface,
+    /// A reflectometer run's isotropic Ward maps per camera (OpenEXR `rho_d.R/G/B`, `rho_s`,
+    /// `alpha`, `rms`, `flags`, and a PNG preview of ρd), fitted to the tube sweep (combined
+    /// with a sweep of the sample turned 90°, which flags anisotropy), through the response
+    /// and `reflectometer-…` calibrations; the geometry calibration's cameras, else the rig
+    /// file's.
+    Ward,
+    /// A reflectometer run's transparency map per camera from its backlight frame (OpenEXR
+    /// `T.R/G/B`, `flags`, and a PNG preview), through the response and `reflectometer-…`
+    /// calibrations.
+    Transparency,
 }
 
 /// `--depth-method`.
@@ -114,6 +131,8 @@ struct Calibrations {
     colour: Option<(ColourSet, String)>,
     geometry: Option<(BTreeMap<String, CameraGeometry>, String)>,
     laser_planes: Option<(LaserPlanes, String)>,
+    /// The sources per camera, the id, and the response calibration it was made through.
+    reflectometer: Option<(BTreeMap<String, SourceCalibration>, String, String)>,
 }
 
 /// Loads calibrations `ids`, at most one of each kind.
@@ -152,6 +171,18 @@ fn load_calibrations(root: &std::path::Path, ids: &[String]) -> Result<Calibrati
                 let planes: LaserPlanesResult = stored.result(kind).map_err(store_err)?;
                 found.laser_planes = Some((planes.planes, stored.id.clone()));
             }
+            CalibrationKind::Reflectometer if found.reflectometer.is_some() => return Err(twice()),
+            CalibrationKind::Reflectometer => {
+                let through = stored.calibration.parameters["response"]
+                    .as_str()
+                    .unwrap_or_default()
+                    .to_string();
+                found.reflectometer = Some((
+                    stored.result(kind).map_err(store_err)?,
+                    stored.id.clone(),
+                    through,
+                ));
+            }
         }
     }
     Ok(found)
@@ -168,7 +199,7 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
             .filter(|(kind, _)| {
                 matches!(
                     kind.as_str(),
-                    "response" | "colour" | "geometry" | "laser-planes"
+                    "response" | "colour" | "geometry" | "laser-planes" | "reflectometer"
                 )
             })
             .map(|(_, id)| id.clone())
@@ -356,8 +387,16 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
         }
         _ => None,
     };
+    let reflectometer = if want(Product::Ward) || want(Product::Transparency) {
+        Some(reflectometer_maps(
+            &args, &found, &rig, &root, &mut store, &software,
+        )?)
+    } else {
+        None
+    };
     let report = Report {
         summary,
+        reflectometer,
         btf_layout: layout.as_ref().map(|l| BtfReport {
             views: l.views.len(),
             lights: l.lights.len(),
@@ -374,6 +413,64 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
         print_report(&report, &args);
     }
     Ok(0)
+}
+
+/// The Ward and transparency maps of a reflectometer run.
+fn reflectometer_maps(
+    args: &ProcessArgs,
+    found: &Calibrations,
+    rig: &stagehand_devices::rig::RigSpec,
+    root: &std::path::Path,
+    store: &mut ProductStore,
+    software: &str,
+) -> Result<ReflectometerSummary, SessionError> {
+    let reflectometer = ReflectometerRig::of(rig)?;
+    let (responses, response_id) = found.response.as_ref().ok_or_else(|| {
+        SessionError::Io(
+            "ward and transparency need a response calibration: --calibration response-… (the one the reflectometer calibration was made through)".into(),
+        )
+    })?;
+    let (sources, sources_id, through) = found.reflectometer.as_ref().ok_or_else(|| {
+        SessionError::Io(
+            "ward and transparency need a reflectometer calibration: --calibration reflectometer-… (make one with `stagehand calibrate reflectometer` on a run over the reference sample)".into(),
+        )
+    })?;
+    if through != response_id {
+        return Err(SessionError::Io(format!(
+            "--calibration {sources_id} was made through response calibration {through}, not {response_id}: the tube's intensity is in that calibration's units; process with --calibration {through}"
+        )));
+    }
+    let cameras: Vec<String> = match args.cameras.is_empty() {
+        true => rig.cameras.iter().map(|c| c.id.clone()).collect(),
+        false => args.cameras.clone(),
+    };
+    let (geometry, geometry_id) = match &found.geometry {
+        Some((g, id)) => (g.clone(), id.clone()),
+        None => (
+            super::calibrate_colour::camera_geometry(rig, &cameras, None, root)?,
+            NOMINAL.to_string(),
+        ),
+    };
+    let setup = ReflectometerSetup {
+        response: (responses, response_id),
+        sources: (sources, sources_id),
+        geometry: (&geometry, &geometry_id),
+        lamps: reflectometer.lamps(),
+        tube_height_mm: reflectometer.tube_height_mm,
+        travel_mm: reflectometer.travel_mm,
+        ward: args.products.contains(&Product::Ward),
+        transparency: args.products.contains(&Product::Transparency),
+        options: WardFitOptions::default(),
+        cameras: (!args.cameras.is_empty()).then_some(args.cameras.as_slice()),
+    };
+    let bar = progress_bar("cameras");
+    let made = reflectometer_products(store, setup, software, &mut |done, total| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    })
+    .map_err(processing_err)?;
+    bar.finish_and_clear();
+    Ok(made)
 }
 
 /// A progress bar on stderr counting `what`.
@@ -405,6 +502,7 @@ struct Report {
     depth: Option<DepthSummary>,
     mdf: Option<MdfSummary>,
     surface: Option<SurfaceSummary>,
+    reflectometer: Option<ReflectometerSummary>,
 }
 
 fn print_report(report: &Report, args: &ProcessArgs) {
@@ -475,6 +573,19 @@ fn print_report(report: &Report, args: &ProcessArgs) {
             100.0 * s.measured_fraction,
             if s.written { "" } else { " (already current)" }
         );
+    }
+    if let Some(r) = &report.reflectometer {
+        println!(
+            "ward: {} written, {} already current; transparency: {} written, {} already current",
+            r.ward_written, r.ward_skipped, r.transparency_written, r.transparency_skipped
+        );
+        if r.ward_written > 0 {
+            println!(
+                "  of the pixels on the sample plane: {:.2} % refused or fitted poorly, {:.2} % anisotropic (isotropic Ward does not fit them)",
+                100.0 * r.not_converged,
+                100.0 * r.anisotropic
+            );
+        }
     }
     println!(
         "products in {}",

@@ -8,6 +8,7 @@ mod depth;
 mod geometry;
 mod hdr;
 mod laser_planes;
+mod material;
 mod rectified;
 mod response;
 mod surface;
@@ -22,6 +23,9 @@ pub use depth::{DepthFigures, evaluate_depth};
 pub use geometry::{CameraFigures, GeometryFigures, evaluate_geometry, truth_geometry};
 pub use hdr::{ErrorFigures, HdrFigures, evaluate_hdr};
 pub use laser_planes::{LaserPlaneFigures, evaluate_laser_planes};
+pub use material::{
+    Spread, TransparencyFigures, WardFigures, evaluate_transparency, evaluate_ward,
+};
 pub use rectified::{RectifiedFigures, evaluate_rectified};
 pub use response::{ChannelFigures, ResponseFigures, evaluate_response};
 pub use surface::{SurfaceFigures, evaluate_surface};
@@ -64,6 +68,10 @@ pub struct Report {
     pub mdf: Option<DepthFigures>,
     /// The height and normal maps against the simulated sample's height field.
     pub surface: Option<SurfaceFigures>,
+    /// The reflectometer's Ward maps against the material plane.
+    pub ward: Option<WardFigures>,
+    /// The reflectometer's transparency maps against the material plane.
+    pub transparency: Option<TransparencyFigures>,
 }
 
 /// The run's reader and its products of `kind`; `None` when it has none.
@@ -122,6 +130,8 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
         depth_per_frame: None,
         mdf: None,
         surface: None,
+        ward: None,
+        transparency: None,
     };
     for stored in calibration_store::list(&root)?.into_iter().flatten() {
         if !stored.calibration.inputs.iter().any(|i| i.run_id == run_id)
@@ -139,6 +149,9 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
             CalibrationKind::LaserPlanes => report
                 .laser_planes
                 .push(evaluate_laser_planes(&stored, &truth, run_dir)?),
+            // In the response calibration's relative units: measured through the maps it
+            // makes (the `ward` and `transparency` sections).
+            CalibrationKind::Reflectometer => {}
         }
     }
     report.hdr = evaluate_hdr(run_dir, &root)?;
@@ -147,5 +160,7 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
     report.depth_per_frame = evaluate_depth(run_dir, &root, "depth_per_frame")?;
     report.mdf = evaluate_depth(run_dir, &root, "mdf")?;
     report.surface = evaluate_surface(run_dir)?;
+    report.ward = evaluate_ward(run_dir)?;
+    report.transparency = evaluate_transparency(run_dir)?;
     Ok(report)
 }

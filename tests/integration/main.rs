@@ -27,6 +27,7 @@ mod laser_geometry;
 mod process;
 mod real_grbl_quickstart;
 mod rectification;
+mod reflectometer;
 mod run_state;
 mod sequences;
 mod sim_tradeoff;

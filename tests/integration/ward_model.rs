@@ -56,6 +56,7 @@ const PER_MM: f32 = 0.5;
 const TUBE: Tube = Tube {
     height_mm: 60.0,
     length_mm: 300.0,
+    radius_mm: 13.0,
 };
 
 /// The reflectometer camera: 60° elevation on the −x side, 600 mm from the sample's centre.

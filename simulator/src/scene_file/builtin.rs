@@ -2,7 +2,7 @@
 //! or a script's `prompt(fixture=...)` can name them without any files.
 
 /// Every built-in scene as (fixture name, TOML text); the names are [`FIXTURES`].
-pub const BUILTIN_SCENES: [(&str, &str); 13] = [
+pub const BUILTIN_SCENES: [(&str, &str); 14] = [
     ("flat", include_str!("../../scenes/flat.toml")),
     ("bumps", include_str!("../../scenes/bumps.toml")),
     ("steps", include_str!("../../scenes/steps.toml")),
@@ -28,6 +28,10 @@ pub const BUILTIN_SCENES: [(&str, &str); 13] = [
     ),
     ("felt_quasi", include_str!("../../scenes/felt_quasi.toml")),
     ("cavity", include_str!("../../scenes/cavity.toml")),
+    (
+        "opal_reference",
+        include_str!("../../scenes/opal_reference.toml"),
+    ),
 ];
 
 /// Fixtures that can lie on the stage (procedural samples and calibration targets): the names
