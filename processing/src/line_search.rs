@@ -15,7 +15,10 @@ fn log_grid_minimum(f: &impl Fn(f64) -> f64, lo: f64, hi: f64, points: usize) ->
     (best, step)
 }
 
-/// The minimum of `f` on [a, b] by `steps` golden-section steps.
+/// The minimum of `f` on [a, b] by `steps` golden-section steps, finished by the vertex of the
+/// parabola through the last two points and the bracket's middle (a smooth minimum is then
+/// found far closer than the bracket; a parabola that is not convex, or whose vertex leaves
+/// the bracket, gives the best of the three points instead).
 fn golden_section(f: &impl Fn(f64) -> f64, mut a: f64, mut b: f64, steps: usize) -> f64 {
     let r = 0.5 * (5f64.sqrt() - 1.0);
     let (mut c, mut d) = (b - r * (b - a), a + r * (b - a));
@@ -35,7 +38,20 @@ fn golden_section(f: &impl Fn(f64) -> f64, mut a: f64, mut b: f64, steps: usize)
             fd = f(d);
         }
     }
-    0.5 * (a + b)
+    let m = 0.5 * (a + b);
+    let fm = f(m);
+    let (p, q) = ((m - c) * (fm - fd), (m - d) * (fm - fc));
+    let denominator = p - q;
+    let vertex = m - 0.5 * ((m - c) * p - (m - d) * q) / denominator;
+    let convex = fm <= fc.max(fd) && denominator.abs() > 0.0;
+    if convex && vertex.is_finite() && vertex >= a && vertex <= b {
+        vertex
+    } else {
+        [(c, fc), (m, fm), (d, fd)]
+            .into_iter()
+            .min_by(|x, y| x.1.total_cmp(&y.1))
+            .map_or(m, |(x, _)| x)
+    }
 }
 
 /// The minimum of `f` over [`lo`, `hi`] (both > 0) searched in ln x: the grid, then golden

@@ -96,8 +96,8 @@ pub const MIN_SAMPLES: usize = 6;
 /// for the fit to report one: well above the 1 %-level critical value (about 4.6), so that
 /// noise on a matte sample is not read as a faint lobe.
 const MIN_LOBE_F: f64 = 10.0;
-const GRID: usize = 14;
-const GOLDEN_STEPS: usize = 20;
+const GRID: usize = 10;
+const GOLDEN_STEPS: usize = 8;
 
 /// Fits a pixel seen at `view` under `tube` to its `samples`. Errors when a sample is not
 /// finite or too few samples are usable; every weaker case is a flag on the result.
