@@ -52,6 +52,9 @@ pub struct WardFigures {
     pub rho_s: Option<Spread>,
     /// Relative error of α (the truth's isotropic α, or the mean of αx and αy) there.
     pub alpha: Option<Spread>,
+    /// The re-render error: each fitted pixel's model under every tube stop against the
+    /// captured radiance (relative RMS residual, the maps' `rms` channel).
+    pub rerender: Option<Spread>,
     /// Fraction of the pixels whose fit was refused or flagged poor.
     pub not_converged: f64,
     /// Fraction of the pixels flagged anisotropic.
@@ -139,14 +142,17 @@ pub fn evaluate_ward(run_dir: &Path) -> Result<Option<WardFigures>, EvaluateErro
         return Ok(None);
     };
     let (mut rho_d, mut rho_s, mut alpha) = (Vec::new(), Vec::new(), Vec::new());
+    let mut rerender = Vec::new();
     let (mut pixels, mut poor, mut flagged, mut truly, mut no_spec) = (0, 0, 0, 0, 0);
     let (mut found, mut false_alarms) = (0, 0);
     for pair in &pairs {
         let (p, t) = (&pair.product, &pair.truth);
-        let fitted: Vec<&[f32]> = ["rho_d.R", "rho_d.G", "rho_d.B", "rho_s", "alpha", "flags"]
-            .iter()
-            .map(|c| channel(p, c))
-            .collect::<Result<_, _>>()?;
+        let fitted: Vec<&[f32]> = [
+            "rho_d.R", "rho_d.G", "rho_d.B", "rho_s", "alpha", "flags", "rms",
+        ]
+        .iter()
+        .map(|c| channel(p, c))
+        .collect::<Result<_, _>>()?;
         let truth: Vec<&[f32]> = ["albedo.R", "albedo.G", "albedo.B", "ks", "alpha", "alpha_y"]
             .iter()
             .map(|c| channel(t, c))
@@ -166,6 +172,9 @@ pub fn evaluate_ward(run_dir: &Path) -> Result<Option<WardFigures>, EvaluateErro
             found += usize::from(anisotropic && flagged_here);
             false_alarms += usize::from(!anisotropic && flagged_here);
             no_spec += usize::from(flags & WardFlag::NoSpecular.bit() != 0);
+            if flags & REFUSED == 0 {
+                rerender.push(f64::from(fitted[6][i]));
+            }
             if flags & (REFUSED | WardFlag::PoorFit.bit()) != 0 {
                 poor += 1;
                 continue;
@@ -202,6 +211,7 @@ pub fn evaluate_ward(run_dir: &Path) -> Result<Option<WardFigures>, EvaluateErro
         rho_d: Spread::of(rho_d),
         rho_s: Spread::of(rho_s),
         alpha: Spread::of(alpha),
+        rerender: Spread::of(rerender),
         not_converged: fraction(poor),
         flagged_anisotropic: fraction(flagged),
         truly_anisotropic: fraction(truly),
