@@ -411,7 +411,7 @@ pub fn reflectometer_products(
                     .filter(|f| **f & UNSEEN == 0 && **f & (REFUSED | WardFlag::PoorFit.bit()) != 0)
                     .count();
                 aniso += maps.count(WardFlag::Anisotropic.bit());
-                made.extend(ward_files(&new, &maps)?);
+                made.extend(ward_files(&run_dir, &new, &maps)?);
                 summary.ward_written += 1;
             }
         }
@@ -451,31 +451,17 @@ pub fn reflectometer_products(
                     .zip(&map.flags)
                     .flat_map(|(t, f)| [t[0], t[1], t[2], f32::from(*f)])
                     .collect();
-                let channels = ["T.R", "T.G", "T.B", "flags"].map(String::from);
                 let metadata = json!({
                     "camera": camera,
                     "channels": {"T": "fraction of the backlight panel's radiance passing through", "flags": "1 clipped (T a lower bound), 2 above one (clamped)"},
                 });
-                let exr = encode_exr_planes(
-                    &new.file_name,
-                    w,
-                    h,
-                    &channels,
-                    &samples,
-                    &metadata.to_string(),
-                )
-                .map_err(dataset_err(&run_dir))?;
-                let png = encode_png16(
-                    &new.file_name,
-                    w,
-                    h,
-                    &preview(&map.rgb),
-                    16,
-                    &metadata.to_string(),
-                )
-                .map_err(dataset_err(&run_dir))?;
-                made.push((preview_product(&new), png));
-                made.push((new, exr));
+                let planes = Planes {
+                    size: (w, h),
+                    channels: &["T.R", "T.G", "T.B", "flags"],
+                    samples: &samples,
+                    preview_rgb: &map.rgb,
+                };
+                made.extend(map_files(&run_dir, &new, &planes, &metadata)?);
                 summary.transparency_written += 1;
             }
         }
@@ -500,9 +486,40 @@ fn preview_product(new: &NewProduct) -> NewProduct {
     }
 }
 
+/// A map's planes: its size, channel names, interleaved samples, and the RGB its preview shows.
+struct Planes<'a> {
+    size: (u32, u32),
+    channels: &'a [&'a str],
+    samples: &'a [f32],
+    preview_rgb: &'a [f32],
+}
+
+/// A map's OpenEXR (`new`) and its PNG preview, with `metadata` in both.
+fn map_files(
+    run_dir: &Path,
+    new: &NewProduct,
+    planes: &Planes<'_>,
+    metadata: &serde_json::Value,
+) -> Result<Made, ProcessingError> {
+    let (w, h) = planes.size;
+    let metadata = metadata.to_string();
+    let channels: Vec<String> = planes.channels.iter().map(|c| c.to_string()).collect();
+    let exr = encode_exr_planes(&new.file_name, w, h, &channels, planes.samples, &metadata)
+        .map_err(dataset_err(run_dir))?;
+    let png = encode_png16(
+        &new.file_name,
+        w,
+        h,
+        &preview(planes.preview_rgb),
+        16,
+        &metadata,
+    )
+    .map_err(dataset_err(run_dir))?;
+    Ok(vec![(preview_product(new), png), (new.clone(), exr)])
+}
+
 /// The Ward maps' OpenEXR and ρd preview.
-fn ward_files(new: &NewProduct, maps: &WardMaps) -> Result<Made, ProcessingError> {
-    let (w, h) = (maps.width as u32, maps.height as u32);
+fn ward_files(run_dir: &Path, new: &NewProduct, maps: &WardMaps) -> Result<Made, ProcessingError> {
     let n = maps.width * maps.height;
     let samples: Vec<f32> = (0..n)
         .flat_map(|i| {
@@ -517,10 +534,6 @@ fn ward_files(new: &NewProduct, maps: &WardMaps) -> Result<Made, ProcessingError
             ]
         })
         .collect();
-    let channels = [
-        "rho_d.R", "rho_d.G", "rho_d.B", "rho_s", "alpha", "rms", "flags",
-    ]
-    .map(String::from);
     let metadata = json!({
         "camera": new.parameters["camera"],
         "channels": {
@@ -528,15 +541,14 @@ fn ward_files(new: &NewProduct, maps: &WardMaps) -> Result<Made, ProcessingError
             "rms": "relative RMS residual of the fit",
             "flags": "bits: 0 black, 1 no specular, 2 specular peak outside the sweep, 3 alpha below the stop spacing, 4 alpha at the search's end, 5 saturated samples, 6 poor fit, 7 anisotropic, 13 not in the turned scan, 14 unseen, 15 refused",
         },
-    })
-    .to_string();
-    let err = |e| ProcessingError::Dataset {
-        run: new.file_name.clone(),
-        message: format!("{e}"),
+    });
+    let planes = Planes {
+        size: (maps.width as u32, maps.height as u32),
+        channels: &[
+            "rho_d.R", "rho_d.G", "rho_d.B", "rho_s", "alpha", "rms", "flags",
+        ],
+        samples: &samples,
+        preview_rgb: &maps.rho_d,
     };
-    let exr =
-        encode_exr_planes(&new.file_name, w, h, &channels, &samples, &metadata).map_err(err)?;
-    let png =
-        encode_png16(&new.file_name, w, h, &preview(&maps.rho_d), 16, &metadata).map_err(err)?;
-    Ok(vec![(preview_product(new), png), (new.clone(), exr)])
+    map_files(run_dir, new, &planes, &metadata)
 }
