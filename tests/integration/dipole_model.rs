@@ -8,6 +8,7 @@ use stagehand_simulator::materials::dipole::Dipole;
 
 #[test]
 fn processing_and_simulator_share_one_dipole() {
+    let _turn = crate::grbl_peer::alongside();
     for alpha_p in [0.01, 0.425, 0.9, 0.99] {
         for sigma_t_p in [0.05, 1.0, 10.0] {
             for eta in [1.0, 1.3, 1.5] {

@@ -11,6 +11,7 @@ use stagehand_simulator::world_snapshot::LaserBeam;
 
 #[test]
 fn the_nominal_sheet_is_the_plane_the_simulator_renders() {
+    let _turn = crate::grbl_peer::alongside();
     let rig = parse_rig(BUILTIN_LIGHTSTAGE, "lightstage.toml").expect("built-in rig");
     let spec = rig.laser.as_ref().expect("the light stage has a laser");
     let mut checked = 0;

@@ -31,6 +31,7 @@ fn dir(theta: f64, phi: f64) -> (Vector3<f64>, DVec3) {
 
 #[test]
 fn processing_and_simulator_share_one_ward_lobe() {
+    let _turn = crate::grbl_peer::alongside();
     let thetas = [0.0, 0.3, 0.9, 1.4, std::f64::consts::FRAC_PI_2 - 1e-4, 2.0];
     let (n, dn) = dir(0.0, 0.0);
     let mut compared = 0;
@@ -123,6 +124,7 @@ fn ward(rho_d: [f64; 3], rho_s: f64, alpha: f64) -> Material {
 /// to broad lobes.
 #[test]
 fn the_tube_response_is_what_the_simulator_renders() {
+    let _turn = crate::grbl_peer::alongside();
     let p = Vector3::new(4.0, -6.0, 0.0);
     let view = ViewPoint::seen_from(p, camera()).expect("above");
     let (mirror_x, _) = view.mirror_point(TUBE.height_mm);
@@ -167,6 +169,7 @@ fn rendered_scan(material: Material, p: Vector3<f64>) -> Vec<WardSample> {
 /// reported as such, where either scan alone fits some isotropic lobe.
 #[test]
 fn rendered_scans_fit_back_and_anisotropy_is_reported() {
+    let _turn = crate::grbl_peer::alongside();
     let p = Vector3::new(-3.0, 5.0, 0.0);
     let view = ViewPoint::seen_from(p, camera()).expect("above");
     let options = WardFitOptions::default();
