@@ -22,10 +22,10 @@ use crate::chart_layout::{ChartLayout, PATCHES};
 use crate::chart_locate::{ChartFit, LocateOptions, PlacedChart, locate_chart};
 use crate::error::ProcessingError;
 use crate::gray_image::GrayImage;
-use crate::hdr_frame::{HdrFrame, MergeWeight, PixelState, RgbExposure, merge_rgb_frames};
+use crate::hdr_frame::{HdrFrame, PixelState};
 use crate::response_calibration::{CameraResponse, ResponseSet};
 use crate::rig_frame::sample_to_camera;
-use crate::run_frames::{BracketKey, bracket_keys, decode_bracket, open_run};
+use crate::run_frames::{BracketKey, bracket_keys, merge_capture, open_run};
 use crate::white_balance::{PatchMeasurement, WhiteBalance, patch_mean, white_balance};
 
 /// Fewest pixels a patch's core must cover to be measured.
@@ -346,31 +346,6 @@ pub fn fit_lamp(
     Ok(LampScale { fit, views })
 }
 
-/// Merges one capture's bracket through `response`.
-fn merge(
-    reader: &stagehand_dataset::RunReader,
-    key: &BracketKey,
-    response: &CameraResponse,
-) -> Result<(HdrFrame, Vec<String>), ProcessingError> {
-    let exposures = decode_bracket(reader, key)?;
-    let bracket: Vec<RgbExposure<'_>> = exposures
-        .iter()
-        .map(|e| RgbExposure {
-            exposure_s: e.exposure_s,
-            dn: &e.dn,
-        })
-        .collect();
-    let hdr = merge_rgb_frames(
-        &bracket,
-        key.meta.width as usize,
-        key.meta.height as usize,
-        &response.channels,
-        [1.0; 3],
-        MergeWeight::HatTimesExposure,
-    )?;
-    Ok((hdr, exposures.into_iter().map(|e| e.path).collect()))
-}
-
 /// The response must have been fitted on frames of the same bit depth: its usable range ends
 /// 2 % below full scale.
 fn check_depth(
@@ -460,7 +435,7 @@ pub fn calibrate_colour(
             let mut merged = Vec::with_capacity(group.len());
             for key in group {
                 check_depth(camera, key, response)?;
-                merged.push(merge(&reader, key, response).map_err(in_camera(camera))?);
+                merged.push(merge_capture(&reader, key, response).map_err(in_camera(camera))?);
             }
             let captures: Vec<LampCapture<'_>> = group
                 .iter()

@@ -9,6 +9,8 @@ use stagehand_dataset::png16::{DecodedPng, decode_png16};
 use stagehand_dataset::{FrameKind, FrameMeta, FrameQuery, RunReader, StoredFrame};
 
 use crate::error::ProcessingError;
+use crate::hdr_frame::{HdrFrame, MergeWeight, RgbExposure, merge_rgb_frames};
+use crate::response_calibration::CameraResponse;
 
 /// One capture of one camera: the facts shared by its exposures.
 #[derive(Debug, Clone, PartialEq)]
@@ -158,6 +160,32 @@ pub fn decode_bracket(
             })
         })
         .collect()
+}
+
+/// Merges one capture's bracket through `response` (weights favouring the longer exposures);
+/// returns the merge and the frames' paths.
+pub fn merge_capture(
+    reader: &RunReader,
+    key: &BracketKey,
+    response: &CameraResponse,
+) -> Result<(HdrFrame, Vec<String>), ProcessingError> {
+    let exposures = decode_bracket(reader, key)?;
+    let bracket: Vec<RgbExposure<'_>> = exposures
+        .iter()
+        .map(|e| RgbExposure {
+            exposure_s: e.exposure_s,
+            dn: &e.dn,
+        })
+        .collect();
+    let hdr = merge_rgb_frames(
+        &bracket,
+        key.meta.width as usize,
+        key.meta.height as usize,
+        &response.channels,
+        [1.0; 3],
+        MergeWeight::HatTimesExposure,
+    )?;
+    Ok((hdr, exposures.into_iter().map(|e| e.path).collect()))
 }
 
 /// An axis angle a frame records, degrees: 0 when the rig has no such axis (`None`); an error

@@ -18,6 +18,9 @@ use stagehand_processing::capture_products::{
 };
 use stagehand_processing::colour_calibration::ColourSet;
 use stagehand_processing::depth_products::{DepthMethod, DepthSetup, DepthSummary, depth_products};
+use stagehand_processing::dipole_products::{
+    DipoleOptions, DipoleReference, DipoleSetup, DipoleSummary, dipole_products,
+};
 use stagehand_processing::hdr_frame::MergeWeight;
 use stagehand_processing::laser_plane_calibration::LaserPlanesResult;
 use stagehand_processing::laser_planes::LaserPlanes;
@@ -75,6 +78,11 @@ pub enum Product {
     /// `T.R/G/B`, `flags`, and a PNG preview), through the response and `reflectometer-…`
     /// calibrations.
     Transparency,
+    /// A quasi-homogeneous run's dipole fit per laser colour (`products/dipole/<nm>nm.json`:
+    /// α′, σ′t, R, the profile fitted and each camera's own fit), from the lines at normal
+    /// incidence, the laser's power measured on the reference of `--reference-albedo`; through
+    /// the response calibration and the geometry calibration's cameras, else the rig file's.
+    Dipole,
 }
 
 /// `--depth-method`.
@@ -119,6 +127,16 @@ pub struct ProcessArgs {
     /// covers). Default: every camera's.
     #[arg(long, value_delimiter = ',')]
     pub cameras: Vec<String>,
+    /// `dipole`: the albedo of the reference the laser's power is measured on (one value, or
+    /// R,G,B). Required for `dipole`.
+    #[arg(long, value_delimiter = ',', num_args = 1..=3)]
+    pub reference_albedo: Vec<f64>,
+    /// `dipole`: the reference's fixture name in the frames.
+    #[arg(long, default_value = "opal_reference")]
+    pub reference_fixture: String,
+    /// `dipole`: the sample's relative index of refraction η (the seed's 1.3 unless known).
+    #[arg(long, default_value_t = 1.3)]
+    pub eta: f64,
     /// Print the summary as JSON.
     #[arg(long)]
     pub json: bool,
@@ -394,9 +412,23 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
     } else {
         None
     };
+    let dipole = if want(Product::Dipole) {
+        Some(dipole_fits(
+            &args,
+            &found,
+            &rig,
+            &root,
+            turntable.as_deref(),
+            &mut store,
+            &software,
+        )?)
+    } else {
+        None
+    };
     let report = Report {
         summary,
         reflectometer,
+        dipole,
         btf_layout: layout.as_ref().map(|l| BtfReport {
             views: l.views.len(),
             lights: l.lights.len(),
@@ -440,17 +472,7 @@ fn reflectometer_maps(
             "--calibration {sources_id} was made through response calibration {through}, not {response_id}: the tube's intensity is in that calibration's units; process with --calibration {through}"
         )));
     }
-    let cameras: Vec<String> = match args.cameras.is_empty() {
-        true => rig.cameras.iter().map(|c| c.id.clone()).collect(),
-        false => args.cameras.clone(),
-    };
-    let (geometry, geometry_id) = match &found.geometry {
-        Some((g, id)) => (g.clone(), id.clone()),
-        None => (
-            super::calibrate_colour::camera_geometry(rig, &cameras, None, root)?,
-            NOMINAL.to_string(),
-        ),
-    };
+    let (geometry, geometry_id) = cameras_geometry(args, found, rig, root)?;
     let setup = ReflectometerSetup {
         response: (responses, response_id),
         sources: (sources, sources_id),
@@ -465,6 +487,88 @@ fn reflectometer_maps(
     };
     let bar = progress_bar("cameras");
     let made = reflectometer_products(store, setup, software, &mut |done, total| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    })
+    .map_err(processing_err)?;
+    bar.finish_and_clear();
+    Ok(made)
+}
+
+/// The cameras' geometry and its id: the geometry calibration's, else the rig file's
+/// ([`NOMINAL`]), for the cameras asked for.
+fn cameras_geometry(
+    args: &ProcessArgs,
+    found: &Calibrations,
+    rig: &stagehand_devices::rig::RigSpec,
+    root: &std::path::Path,
+) -> Result<(BTreeMap<String, CameraGeometry>, String), SessionError> {
+    if let Some((g, id)) = &found.geometry {
+        return Ok((g.clone(), id.clone()));
+    }
+    let cameras: Vec<String> = match args.cameras.is_empty() {
+        true => rig.cameras.iter().map(|c| c.id.clone()).collect(),
+        false => args.cameras.clone(),
+    };
+    Ok((
+        super::calibrate_colour::camera_geometry(rig, &cameras, None, root)?,
+        NOMINAL.to_string(),
+    ))
+}
+
+/// The dipole fits of a quasi-homogeneous run.
+fn dipole_fits(
+    args: &ProcessArgs,
+    found: &Calibrations,
+    rig: &stagehand_devices::rig::RigSpec,
+    root: &std::path::Path,
+    turntable: Option<&str>,
+    store: &mut ProductStore,
+    software: &str,
+) -> Result<DipoleSummary, SessionError> {
+    let (responses, response_id) = found.response.as_ref().ok_or_else(|| {
+        SessionError::Io(
+            "dipole needs a response calibration: --calibration response-… (make one with `stagehand calibrate response`)".into(),
+        )
+    })?;
+    let albedo = match args.reference_albedo.as_slice() {
+        [a] => [*a; 3],
+        [r, g, b] => [*r, *g, *b],
+        [] => {
+            return Err(SessionError::Io(format!(
+                "dipole needs the albedo of the reference `{}` the laser's power is measured on: --reference-albedo A (or R,G,B)",
+                args.reference_fixture
+            )));
+        }
+        other => {
+            return Err(SessionError::Io(format!(
+                "--reference-albedo takes 1 or 3 values, got {}",
+                other.len()
+            )));
+        }
+    };
+    if let Some(bad) = albedo.iter().find(|a| !(**a > 0.0 && **a <= 1.0)) {
+        return Err(SessionError::Io(format!(
+            "--reference-albedo {bad}: an albedo is above 0 and at most 1"
+        )));
+    }
+    let (geometry, geometry_id) = cameras_geometry(args, found, rig, root)?;
+    let setup = DipoleSetup {
+        response: (responses, response_id),
+        geometry: (&geometry, &geometry_id),
+        turntable_axis: turntable,
+        reference: DipoleReference {
+            fixture: &args.reference_fixture,
+            albedo,
+        },
+        options: DipoleOptions {
+            eta: args.eta,
+            ..DipoleOptions::default()
+        },
+        cameras: (!args.cameras.is_empty()).then_some(args.cameras.as_slice()),
+    };
+    let bar = progress_bar("colours");
+    let made = dipole_products(store, setup, software, &mut |done, total| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
     })
@@ -503,6 +607,7 @@ struct Report {
     mdf: Option<MdfSummary>,
     surface: Option<SurfaceSummary>,
     reflectometer: Option<ReflectometerSummary>,
+    dipole: Option<DipoleSummary>,
 }
 
 fn print_report(report: &Report, args: &ProcessArgs) {
@@ -584,6 +689,30 @@ fn print_report(report: &Report, args: &ProcessArgs) {
                 "  of the pixels on the sample plane: {:.2} % refused or fitted poorly, {:.2} % anisotropic (isotropic Ward does not fit them)",
                 100.0 * r.not_converged,
                 100.0 * r.anisotropic
+            );
+        }
+    }
+    if let Some(d) = &report.dipole {
+        println!(
+            "dipole: {} colours written, {} already current",
+            d.written, d.skipped
+        );
+        for (nm, f, r) in &d.fits {
+            let flags: Vec<String> = f.flags.iter().map(|f| format!("{f:?}")).collect();
+            println!(
+                "  {nm} nm: α′ {:.4}, σ′t {:.4} mm⁻¹, R {:.4}; relative RMS {:.3} over {} bins; re-rendered: {:.1} % RMS over {} pixels{}",
+                f.alpha_p,
+                f.sigma_t_p,
+                f.reflectance,
+                f.relative_rms,
+                f.samples,
+                100.0 * r.relative_rms,
+                r.pixels,
+                if flags.is_empty() {
+                    String::new()
+                } else {
+                    format!("; flagged {}", flags.join(", "))
+                }
             );
         }
     }

@@ -5,6 +5,7 @@
 
 mod colour;
 mod depth;
+mod dipole;
 mod geometry;
 mod hdr;
 mod laser_planes;
@@ -20,6 +21,7 @@ use stagehand_processing::calibration_store::{self, CalibrationKind, calibration
 
 pub use colour::{ColourFigures, LampFigures, evaluate_colour};
 pub use depth::{DepthFigures, evaluate_depth};
+pub use dipole::{DipoleColourFigures, DipoleFigures, evaluate_dipole};
 pub use geometry::{CameraFigures, GeometryFigures, evaluate_geometry, truth_geometry};
 pub use hdr::{ErrorFigures, HdrFigures, evaluate_hdr};
 pub use laser_planes::{LaserPlaneFigures, evaluate_laser_planes};
@@ -72,6 +74,8 @@ pub struct Report {
     pub ward: Option<WardFigures>,
     /// The reflectometer's transparency maps against the material plane.
     pub transparency: Option<TransparencyFigures>,
+    /// The dipole fits against the simulated sample's medium.
+    pub dipole: Option<DipoleFigures>,
 }
 
 /// The run's reader and its products of `kind`; `None` when it has none.
@@ -132,6 +136,7 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
         surface: None,
         ward: None,
         transparency: None,
+        dipole: None,
     };
     for stored in calibration_store::list(&root)?.into_iter().flatten() {
         if !stored.calibration.inputs.iter().any(|i| i.run_id == run_id)
@@ -162,5 +167,6 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
     report.surface = evaluate_surface(run_dir)?;
     report.ward = evaluate_ward(run_dir)?;
     report.transparency = evaluate_transparency(run_dir)?;
+    report.dipole = evaluate_dipole(run_dir)?;
     Ok(report)
 }

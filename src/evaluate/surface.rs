@@ -31,6 +31,21 @@ pub struct SurfaceFigures {
     pub normal_median_deg: f64,
 }
 
+/// The simulated run's sample as the simulator built it (its relief at the run's step).
+pub(super) fn simulated_sample(run_dir: &Path) -> Result<Sample, EvaluateError> {
+    let err = |message: String| EvaluateError::Truth {
+        path: run_dir.display().to_string(),
+        message,
+    };
+    let manifest = stagehand_dataset::read_manifest(run_dir).map_err(|e| err(e.to_string()))?;
+    let sim = manifest
+        .sim
+        .ok_or_else(|| err("the run is not simulated: no sample to compare with".into()))?;
+    let relief = sim.knobs["relief_mm"].as_f64().unwrap_or(0.2) as f32;
+    Sample::build(&sim.sample, sim.sample_size_mm as f32, relief)
+        .map_err(|e| err(format!("sample `{}`: {e}", sim.sample)))
+}
+
 /// Evaluates the run's height map and normal map, if it has them.
 pub fn evaluate_surface(run_dir: &Path) -> Result<Option<SurfaceFigures>, EvaluateError> {
     let err = |message: String| EvaluateError::Truth {
@@ -43,13 +58,7 @@ pub fn evaluate_surface(run_dir: &Path) -> Result<Option<SurfaceFigures>, Evalua
     let Some((_, normals)) = super::products_of(run_dir, "normal")? else {
         return Ok(None);
     };
-    let manifest = stagehand_dataset::read_manifest(run_dir).map_err(|e| err(e.to_string()))?;
-    let sim = manifest
-        .sim
-        .ok_or_else(|| err("the run is not simulated: no sample to compare with".into()))?;
-    let relief = sim.knobs["relief_mm"].as_f64().unwrap_or(0.2) as f32;
-    let sample = Sample::build(&sim.sample, sim.sample_size_mm as f32, relief)
-        .map_err(|e| err(format!("sample `{}`: {e}", sim.sample)))?;
+    let sample = simulated_sample(run_dir)?;
     let read = |path: &str| {
         let bytes = std::fs::read(run_dir.join(path)).map_err(|e| err(format!("{path}: {e}")))?;
         decode_exr_planes(path, &bytes).map_err(|e| err(e.to_string()))

@@ -29,3 +29,27 @@ fn processing_and_simulator_share_one_dipole() {
         }
     }
 }
+
+/// The Fresnel factors the dipole product divides by are the ones the simulator's exit lobe
+/// multiplies by: F_t at every angle and c(η), written apart in each crate.
+#[test]
+fn processing_and_simulator_share_the_fresnel_factors() {
+    let _turn = crate::grbl_peer::alongside();
+    use stagehand_processing::dipole::{fresnel_transmittance, hemispherical_transmittance};
+    use stagehand_simulator::materials::fresnel;
+    for eta in [1.0, 1.3, 1.5, 2.0] {
+        for k in 0..=100 {
+            let cos = f64::from(k) / 100.0;
+            let (a, b) = (
+                fresnel_transmittance(cos, eta),
+                fresnel::fresnel_transmittance(cos, eta),
+            );
+            assert!((a - b).abs() < 1e-12, "η {eta}, cos {cos}: {a} vs {b}");
+        }
+        let (a, b) = (
+            hemispherical_transmittance(eta),
+            fresnel::hemispherical_transmittance(eta, 2000),
+        );
+        assert!((a - b).abs() < 1e-12, "η {eta}: c {a} vs {b}");
+    }
+}

@@ -19,6 +19,7 @@ mod daemon_remote;
 mod daemon_runs;
 mod depth;
 mod determinism;
+mod dipole;
 mod dipole_model;
 mod emulated_rig;
 mod ground_truth;

@@ -31,8 +31,11 @@ use super::surface::Surface;
 use super::texgrid::TexGrid;
 use crate::materials::{Dipole, fresnel_transmittance_f32, hemispherical_transmittance};
 
-/// Fraction of R_d's energy the kernel may drop beyond its cut-off radius.
-pub const TAIL: f64 = 1.0e-3;
+/// Fraction of R_d's energy the kernel may drop beyond its cut-off radius. At 10⁻³ the cut
+/// took 3 % off the falloff 8 mm beside a laser line in a bright medium (α′ 0.99, the kernel
+/// ending at 13 mm), which bent the dipole fit's σ′t (`tests/integration/dipole.rs`); at 10⁻⁴
+/// the falloff is whole across the fit's 10 mm window.
+pub const TAIL: f64 = 1.0e-4;
 /// Most texels per side of the subsurface grid.
 pub const MAX_TEXELS: usize = 512;
 /// Most sub-samples per side of one kernel texel.
@@ -440,10 +443,56 @@ mod tests {
         }
     }
 
+    /// A line of light (unit power per mm along one texel column) spreads as R_d integrated
+    /// along the line, the falloff the dipole fit reads beside a laser line: checked against a
+    /// quadrature of R_d at 1 to 9 mm from the line, within 2 % (measured: 0.0–1.7 %, the
+    /// most at 1 mm, where the texels' bilinear lookup meets the falloff's curvature) where it
+    /// is above 10⁻⁴ of its value at 1 mm (below, f32 rounding of the FFT shows).
+    #[test]
+    fn a_line_of_light_falls_off_as_the_line_integral_of_rd() {
+        let medium = felt();
+        let per_mfp = 32;
+        let size = 60.0;
+        let (n, h) = resolution(&[medium], size, per_mfp);
+        let mut e = TexGrid::new(n, size);
+        let column = n / 2;
+        for (k, v) in e.values_mut().iter_mut().enumerate() {
+            if k % n == column {
+                *v = Vec3A::splat(1.0 / h);
+            }
+        }
+        let radius = medium_radius(&medium, per_mfp, size as f64);
+        let (m, _) = convolve(&e, &medium, radius, per_mfp);
+        let x0 = -0.5 * size + (column as f32 + 0.5) * h;
+        for (c, d) in dipoles(&medium).iter().enumerate() {
+            let mut near = None;
+            for x in [1.0f64, 2.0, 4.0, 6.0, 9.0] {
+                // ∫ R_d(√(x² + y²)) dy by y = x·tan u.
+                let steps = 4000;
+                let du = std::f64::consts::FRAC_PI_2 / steps as f64;
+                let want: f64 = (0..steps)
+                    .map(|k| {
+                        let u = (k as f64 + 0.5) * du;
+                        2.0 * d.rd(x / u.cos()) * x / (u.cos() * u.cos()) * du
+                    })
+                    .sum();
+                let got = f64::from(m.at(x0 + x as f32, 0.0).to_array()[c]);
+                let near = *near.get_or_insert(want);
+                if want > 1e-4 * near {
+                    assert!(
+                        (got / want - 1.0).abs() < 0.02,
+                        "channel {c}, {x} mm from the line: {got} against {want}"
+                    );
+                }
+            }
+        }
+    }
+
     /// Energy conservation: uniform entering irradiance comes out, far from the edges, as
     /// R_d,total·E per channel (the closed form of Jensen & Buhler 2002). Stated bound: within
-    /// TAIL (1e-3, the energy the cut-off drops) + 1e-3 (f32 FFT rounding) relative, at 8 and 32
-    /// radial samples per mean free path.
+    /// TAIL (the energy the cut-off drops) + 2e-3 (the radial midpoint rule the kernel is
+    /// scaled to, 1.5e-3 at 8 steps per mean free path, and f32 FFT rounding) relative, at 8
+    /// and 32 radial samples per mean free path.
     #[test]
     fn uniform_irradiance_gives_the_total_diffuse_reflectance() {
         for medium in [
@@ -466,7 +515,7 @@ mod tests {
                     let want = total_diffuse_reflectance(d.reduced_albedo(), d.eta());
                     let err = (got[c] as f64 - want).abs() / want;
                     assert!(
-                        err <= TAIL + 1e-3,
+                        err <= TAIL + 2e-3,
                         "{medium:?} {per_mfp} ch {c}: {} vs {want} ({err:.2e})",
                         got[c]
                     );

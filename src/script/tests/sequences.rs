@@ -226,10 +226,32 @@ fn quasi_homogeneous_defaults() {
     let step1 = 3 * 7 * 12 * 64;
     let step2 = 3 * 12 * 64;
     let step3 = 12 * 8 * 12;
-    assert_eq!(count(&p, "capture"), step1 + step2 + step3);
-    assert_eq!(p.raw_frames(), (step1 + step2) * 8 + step3 * 3 * 8);
-    assert_eq!(p.hdr_frames(), step3 * 8);
-    assert_eq!(p.steps.len(), 40_222);
+    // Step 2 of each colour opens with the laser's line on the reference, a 2-exposure bracket.
+    let reference = 3;
+    assert_eq!(count(&p, "capture"), step1 + step2 + step3 + reference);
+    assert_eq!(
+        p.raw_frames(),
+        (step1 + step2) * 8 + step3 * 3 * 8 + reference * 2 * 8
+    );
+    assert_eq!(p.hdr_frames(), step3 * 8 + reference * 8);
+    assert_eq!(p.steps.len(), 40_249);
+    let fixtures: Vec<&str> = p
+        .steps
+        .iter()
+        .filter_map(|s| match &s.action {
+            Action::Prompt {
+                fixture: Some(f), ..
+            } => Some(f.as_str()),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(fixtures.len(), 6, "{fixtures:?}");
+    assert!(
+        fixtures
+            .chunks(2)
+            .all(|f| f[0] == "opal_reference" && f[1] == "bumps"),
+        "{fixtures:?}"
+    );
     let swaps: Vec<u32> = p
         .steps
         .iter()
@@ -272,7 +294,7 @@ fn quasi_homogeneous_scaled() {
             "views3=2",
         ],
     );
-    assert_eq!(count(&p, "capture"), 2 * (2 * 3 + 2 * 3) + 2 * 2);
+    assert_eq!(count(&p, "capture"), 2 * (2 * 3 + 2 * 3 + 1) + 2 * 2);
     let p = sequence(
         "quasi_homogeneous.rhai",
         QH,
