@@ -34,10 +34,6 @@ use crate::ward_fit::{WardFitOptions, WardFlag};
 use crate::ward_map::{REFUSED, SweepFrame, UNSEEN, WardMaps, combine_turned_maps, ward_maps};
 use crate::ward_tube::Tube;
 
-/// The tube of the thesis's reflectometer (a 15 W fluorescent tube; the simulator's too), mm.
-pub const TUBE_LENGTH_MM: f64 = 300.0;
-/// Its glass's radius (a T8 tube, 26 mm across), mm.
-pub const TUBE_RADIUS_MM: f64 = 13.0;
 /// What [`ReflectometerSetup::geometry`] is called when it is the rig file's nominal geometry.
 pub const NOMINAL: &str = "nominal";
 /// Relative difference of α between the two turned scans above which a pixel is anisotropic.
@@ -222,8 +218,8 @@ pub struct ReflectometerSetup<'a> {
     pub geometry: (&'a BTreeMap<String, CameraGeometry>, &'a str),
     /// Which lamps are the tube and the backlight.
     pub lamps: ReflectometerLamps<'a>,
-    /// The tube's height above the sample, mm.
-    pub tube_height_mm: f64,
+    /// The tube: its height above the sample, length and glass radius (the rig file's), mm.
+    pub tube: Tube,
     /// The cart's travel, mm.
     pub travel_mm: f64,
     /// Ward maps.
@@ -309,11 +305,7 @@ pub fn reflectometer_products(
                 ),
             })
     };
-    let tube = Tube {
-        height_mm: setup.tube_height_mm,
-        length_mm: TUBE_LENGTH_MM,
-        radius_mm: TUBE_RADIUS_MM,
-    };
+    let tube = setup.tube;
     let mut summary = ReflectometerSummary::default();
     let cameras: Vec<String> = by_camera
         .keys()

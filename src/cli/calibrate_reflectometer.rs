@@ -17,8 +17,8 @@ use stagehand_processing::reflectometer_calibration::{
     ReferenceSample, SourceCalibration, calibrate_sources,
 };
 use stagehand_processing::reflectometer_products::{
-    ReflectometerLamps, TUBE_LENGTH_MM, TUBE_RADIUS_MM, as_sweep_frames, camera_response,
-    frame_radiance, reflectometer_frames, sweep_radiance,
+    ReflectometerLamps, as_sweep_frames, camera_response, frame_radiance, reflectometer_frames,
+    sweep_radiance,
 };
 use stagehand_processing::response_calibration::ResponseSet;
 use stagehand_processing::ward_tube::Tube;
@@ -61,8 +61,8 @@ pub struct ReflectometerRig {
     pub tube: Vec<String>,
     /// The backlight lamps' ids.
     pub backlight: Vec<String>,
-    /// The tube's height above the sample, mm.
-    pub tube_height_mm: f64,
+    /// The tube's height above the sample, length and glass radius, mm.
+    pub tube_geometry: Tube,
     /// The cart's travel, mm.
     pub travel_mm: f64,
 }
@@ -87,7 +87,11 @@ impl ReflectometerRig {
         Ok(ReflectometerRig {
             tube: ids(LampKind::Tube),
             backlight: ids(LampKind::Backlight),
-            tube_height_mm: tube.distance_mm,
+            tube_geometry: Tube {
+                height_mm: tube.distance_mm,
+                length_mm: tube.length_mm,
+                radius_mm: tube.radius_mm,
+            },
             travel_mm: cart.travel_mm,
         })
     }
@@ -151,11 +155,7 @@ pub fn run(args: ReflectometerArgs) -> Result<i32, SessionError> {
     let cameras: Vec<String> = first_sweep.keys().cloned().collect();
     response.check_covers(&cameras, &[]).map_err(store_err)?;
     let geometry = camera_geometry(&rig, &cameras, args.geometry.as_deref(), &root)?;
-    let tube = Tube {
-        height_mm: reflectometer.tube_height_mm,
-        length_mm: TUBE_LENGTH_MM,
-        radius_mm: TUBE_RADIUS_MM,
-    };
+    let tube = reflectometer.tube_geometry;
     let mut set: BTreeMap<String, SourceCalibration> = BTreeMap::new();
     let mut frames = Vec::new();
     for (camera, sweep) in &first_sweep {

@@ -478,7 +478,7 @@ fn reflectometer_maps(
         sources: (sources, sources_id),
         geometry: (&geometry, &geometry_id),
         lamps: reflectometer.lamps(),
-        tube_height_mm: reflectometer.tube_height_mm,
+        tube: reflectometer.tube_geometry,
         travel_mm: reflectometer.travel_mm,
         ward: args.products.contains(&Product::Ward),
         transparency: args.products.contains(&Product::Transparency),

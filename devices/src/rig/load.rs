@@ -192,6 +192,17 @@ fn check(spec: &RigSpec) -> Result<(), Problem> {
                 format!("lamp `{}`: distance_mm and power must be positive", l.id),
             ));
         }
+        if l.kind == LampKind::Tube
+            && !(positive(l.length_mm) && positive(l.radius_mm) && l.radius_mm < l.distance_mm)
+        {
+            return Err((
+                at("lamp", i, "radius_mm"),
+                format!(
+                    "lamp `{}`: length_mm ({}) and radius_mm ({}) must be positive, and the glass must clear the sample (radius_mm below distance_mm {})",
+                    l.id, l.length_mm, l.radius_mm, l.distance_mm
+                ),
+            ));
+        }
         if !(l.warmup_s.is_finite() && (0.0..=600.0).contains(&l.warmup_s)) {
             return Err((
                 at("lamp", i, "warmup_s"),
@@ -489,6 +500,25 @@ mod tests {
         let (l, c, m) = err(&text);
         assert_eq!((l, c), (line, 16));
         assert!(m.contains("accel_deg_s2 must be a positive number"), "{m}");
+    }
+
+    #[test]
+    fn a_tube_whose_glass_reaches_the_sample_is_refused_at_its_key() {
+        let text = BUILTIN_REFLECTOMETER.replacen("radius_mm = 13.0", "radius_mm = 70.0", 1);
+        let line = text
+            .lines()
+            .position(|l| l.contains("radius_mm = 70.0"))
+            .unwrap()
+            + 1;
+        let (l, _, m) = err(&text);
+        assert_eq!(l, line, "{m}");
+        assert!(
+            m.contains("radius_mm (70)") && m.contains("distance_mm 60"),
+            "{m}"
+        );
+        let rig = parse_rig(BUILTIN_REFLECTOMETER, "reflectometer.toml").unwrap();
+        let tube = rig.lamps.iter().find(|l| l.id == "tube").unwrap();
+        assert_eq!((tube.length_mm, tube.radius_mm), (300.0, 13.0));
     }
 
     #[test]

@@ -285,10 +285,22 @@ pub struct LampSpec {
     /// Time after switch-on until the output is within 1% of steady state.
     #[serde(default)]
     pub warmup_s: f64,
+    /// A tube's length, mm (the seed's 15 W fluorescent tube: 300).
+    #[serde(default = "default_tube_length")]
+    pub length_mm: f64,
+    /// A tube's glass radius, mm (a T8 tube: 13); its glass hides the sample from the camera.
+    #[serde(default = "default_tube_radius")]
+    pub radius_mm: f64,
 }
 
 fn default_lamp_distance() -> f64 {
     800.0
+}
+fn default_tube_length() -> f64 {
+    300.0
+}
+fn default_tube_radius() -> f64 {
+    13.0
 }
 fn one() -> f64 {
     1.0

@@ -16,10 +16,6 @@ use crate::world_snapshot::WorldSnapshot;
 pub const REFERENCE_DISTANCE_MM: f32 = 800.0;
 /// Radius of a halogen lamp's emitting disk (used above preview quality).
 pub const HALOGEN_RADIUS_MM: f32 = 10.0;
-/// Length of the reflectometer's tube.
-pub const TUBE_LENGTH_MM: f32 = 300.0;
-/// Radius of the tube's glass (an occluder the camera can see).
-pub const TUBE_RADIUS_MM: f32 = 13.0;
 /// Height at which a power-1 tube gives unit irradiance directly below it.
 const TUBE_REFERENCE_HEIGHT_MM: f32 = 60.0;
 /// Points on the turntable that can be lit lie within this radius (black beyond).
@@ -106,6 +102,10 @@ pub struct TubeBody {
     pub centre: Vec3A,
     /// Unit axis.
     pub axis: Vec3A,
+    /// Length of the glass, mm.
+    pub length: f32,
+    /// Radius of the glass, mm.
+    pub radius: f32,
 }
 
 impl TubeBody {
@@ -119,7 +119,7 @@ impl TubeBody {
             return None;
         }
         let b = 2.0 * wp.dot(dp);
-        let c = wp.length_squared() - TUBE_RADIUS_MM * TUBE_RADIUS_MM;
+        let c = wp.length_squared() - self.radius * self.radius;
         let disc = b * b - 4.0 * a * c;
         if disc < 0.0 {
             return None;
@@ -127,7 +127,7 @@ impl TubeBody {
         let sq = disc.sqrt();
         [(-b - sq) / (2.0 * a), (-b + sq) / (2.0 * a)]
             .into_iter()
-            .find(|&t| t > 0.0 && self.axis.dot(w + d * t).abs() <= 0.5 * TUBE_LENGTH_MM)
+            .find(|&t| t > 0.0 && self.axis.dot(w + d * t).abs() <= 0.5 * self.length)
     }
 }
 
@@ -182,7 +182,8 @@ pub fn lit_lamps(
             LampKind::Tube => {
                 let centre = to_sample.point(tube_centre(rig, world, lamp.distance_mm));
                 let axis = to_sample.dir(Vec3A::Y);
-                let start = centre - axis * (0.5 * TUBE_LENGTH_MM);
+                let length = lamp.length_mm as f32;
+                let start = centre - axis * (0.5 * length);
                 // Infinite Lambertian line at height h gives E = π·per_mm / (2h) below it.
                 let per_mm = strength * 2.0 * TUBE_REFERENCE_HEIGHT_MM / std::f32::consts::PI;
                 (
@@ -190,7 +191,7 @@ pub fn lit_lamps(
                     Emitter::Tube {
                         start,
                         axis,
-                        length: TUBE_LENGTH_MM,
+                        length,
                         per_mm,
                     },
                 )
@@ -227,6 +228,8 @@ pub fn tube_bodies(rig: &RigSpec, world: &WorldSnapshot, to_sample: ToSample) ->
         .map(|l| TubeBody {
             centre: to_sample.point(tube_centre(rig, world, l.distance_mm)),
             axis: to_sample.dir(Vec3A::Y),
+            length: l.length_mm as f32,
+            radius: l.radius_mm as f32,
         })
         .collect()
 }
