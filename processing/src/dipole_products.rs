@@ -633,9 +633,10 @@ pub fn dipole_products(
             return Err(ProcessingError::Dataset {
                 run: run_dir.display().to_string(),
                 message: format!(
-                    "the {nm} nm lines at normal incidence fall on {} fixtures ({}); a run holds one sample",
+                    "the {nm} nm lines at normal incidence fall on {} fixtures ({}), and none is the reference `{}`; a run holds one sample beside its reference: name the reference with --reference-fixture",
                     fixtures.len(),
-                    fixtures.join(", ")
+                    fixtures.join(", "),
+                    setup.reference.fixture
                 ),
             });
         }

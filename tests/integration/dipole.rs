@@ -84,6 +84,32 @@ fn the_dipole_comes_back_from_laser_lines_on_a_simulated_medium() {
     let text = String::from_utf8_lossy(&refused.stderr);
     assert!(text.contains("--reference-albedo"), "{text}");
 
+    for (extra, says) in [
+        (&["--reference-albedo", "1.5"][..], "at most 1"),
+        (&["--reference-albedo", "0.8", "--eta", "5"][..], "η in 1–3"),
+        (
+            &[
+                "--reference-albedo",
+                "0.8",
+                "--reference-fixture",
+                "spectralon",
+            ][..],
+            "none is the reference `spectralon`",
+        ),
+    ] {
+        let refused = stagehand_output(
+            &process(extra)
+                .iter()
+                .map(String::as_str)
+                .collect::<Vec<_>>(),
+        );
+        let text = String::from_utf8_lossy(&refused.stderr);
+        assert!(
+            !refused.status.success() && text.contains(says),
+            "{extra:?}: {text}"
+        );
+    }
+
     let args = process(&["--reference-albedo", "0.8"]);
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     let made = stagehand(&args);
