@@ -20,6 +20,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 use stagehand_dataset::FrameMeta;
+use stagehand_dataset::exr_planes::encode_exr_planes;
 use stagehand_dataset::products::{NewProduct, ProductStore};
 
 use crate::calibrate_geometry::CameraGeometry;
@@ -103,6 +104,8 @@ pub struct DipoleSetup<'a> {
     pub options: DipoleOptions,
     /// Only these cameras (`None`: every camera).
     pub cameras: Option<&'a [String]>,
+    /// Also the exit function of each view ([`exit_maps`]).
+    pub exit: bool,
 }
 
 /// One bin of the profile across the line.
@@ -193,6 +196,8 @@ pub struct DipoleSummary {
     pub written: usize,
     /// Colours already current.
     pub skipped: usize,
+    /// Exit-function maps written now (one per camera and view).
+    pub exit_written: usize,
     /// The fits written and their re-render, by colour.
     pub fits: Vec<(u32, DipoleFit, Rerender)>,
 }
@@ -250,6 +255,8 @@ fn plane_pixels(
 /// A pixel placed across and along a measured line.
 #[derive(Debug, Clone, Copy)]
 struct LinePixel {
+    /// Index in the image.
+    index: usize,
     /// Signed distance from the line's centre, mm.
     s: f64,
     /// Radiance in the laser's channel.
@@ -350,6 +357,7 @@ fn line_frame(
             }
             let dot = |d: [f64; 2]| (d[0] * normal[0] + d[1] * normal[1]).abs();
             Some(LinePixel {
+                index: i,
                 s,
                 radiance: f64::from(radiance[i * 3 + channel]),
                 clipped,
@@ -532,6 +540,55 @@ fn fit_bins(
     ))
 }
 
+/// True when the camera sees the sample's centre at a cosine of `min_cos` or more: the
+/// cameras whose views can have an exit map.
+fn sees_steeply(geometry: Option<&CameraGeometry>, min_cos: f64) -> bool {
+    geometry.is_some_and(|g| {
+        let [x, y, z] = g.centre_mm;
+        z / (x * x + y * y + z * z).sqrt().max(1e-9) >= min_cos
+    })
+}
+
+/// One view's pixels beside the lines of its sweep.
+#[derive(Debug, Clone)]
+struct ExitView {
+    size: (usize, usize),
+    table_deg: f64,
+    truth_frame: String,
+    /// (pixel index, distance from the line, value) over every line of the sweep.
+    pixels: Vec<(usize, f64, f64)>,
+}
+
+/// Lines contribute to a point's exit function only while they light it at least this much of
+/// the best-lit point's light (dark points are left at 0: the seed's threshold).
+const EXIT_MIN_WEIGHT: f64 = 0.05;
+
+/// A view's exit function, interleaved (exit, weight) per pixel: the light each point sent
+/// over what the fitted homogeneous medium sends, summed over the lines (so each line weighs
+/// by how well it lit the point); the clipped core left out.
+fn exit_maps(view: &ExitView, medium: &DipoleMedium, width_mm: f64, core_mm: f64) -> Vec<f32> {
+    let n = view.size.0 * view.size.1;
+    let (mut seen, mut model) = (vec![0.0f64; n], vec![0.0f64; n]);
+    for &(i, s, v) in view.pixels.iter().filter(|(_, s, _)| s.abs() > core_mm) {
+        if i < n {
+            seen[i] += v;
+            model[i] += blurred_profile(medium, s, width_mm);
+        }
+    }
+    let top = model.iter().copied().fold(0.0f64, f64::max);
+    (0..n)
+        .flat_map(|i| {
+            let weight = if top > 0.0 { model[i] / top } else { 0.0 };
+            let exit = if weight >= EXIT_MIN_WEIGHT {
+                seen[i] / model[i]
+            } else {
+                0.0
+            };
+            [exit as f32, weight as f32]
+        })
+        .collect()
+}
+
 /// Compares the fitted profile with every pixel's value outside the core.
 fn rerender(
     seen: &[(f64, f64)],
@@ -560,6 +617,17 @@ fn rerender(
         relative_rms: if den > 0.0 { (num / den).sqrt() } else { 0.0 },
         median_relative: rel.get(rel.len() / 2).copied().unwrap_or(0.0),
     }
+}
+
+/// A capture's view: its camera and turntable angle (in thousandths of a degree, a map key),
+/// and the angle.
+fn view_of(
+    run_dir: &std::path::Path,
+    key: &BracketKey,
+    turntable_axis: Option<&str>,
+) -> Result<((String, i64), f64), ProcessingError> {
+    let table = axis_angle(run_dir, &key.meta, &key.frames[0].path, turntable_axis)?;
+    Ok(((key.camera.clone(), (table * 1000.0).round() as i64), table))
 }
 
 /// True for a frame of step 2: the laser on, mounted for normal incidence.
@@ -671,7 +739,45 @@ pub fn dipole_products(
                 "options": options,
             }),
         };
-        if store.is_current(&new).map_err(dataset_err(&run_dir))? {
+        // One exit map per camera and turntable angle (a view: its pixels stay on the same
+        // points of the sample through the sweep).
+        let mut views: BTreeMap<(String, i64), ExitView> = BTreeMap::new();
+        if setup.exit {
+            for key in samples
+                .iter()
+                .filter(|k| sees_steeply(geometries.get(&k.camera), options.min_cos_out))
+            {
+                let (view, table) = view_of(&run_dir, key, setup.turntable_axis)?;
+                views.entry(view).or_insert_with(|| ExitView {
+                    size: (key.meta.width as usize, key.meta.height as usize),
+                    table_deg: table,
+                    truth_frame: key.frames[0].path.clone(),
+                    pixels: Vec::new(),
+                });
+            }
+        }
+        let exit_new = |(camera, _): &(String, i64), view: &ExitView| NewProduct {
+            kind: "exit".into(),
+            key: format!("exit/{nm}/{camera}/{:.3}", view.table_deg),
+            file_name: format!("{nm}nm_{camera}_{:.0}deg.exr", view.table_deg),
+            inputs: new.inputs.clone(),
+            calibrations: new.calibrations.clone(),
+            software: software.to_string(),
+            parameters: json!({
+                "colour_nm": nm,
+                "camera": camera,
+                "turntable_deg": view.table_deg,
+                "truth_frame": view.truth_frame,
+                "dipole": new.parameters,
+            }),
+        };
+        let mut all_current = store.is_current(&new).map_err(dataset_err(&run_dir))?;
+        for (k, v) in &views {
+            all_current &= store
+                .is_current(&exit_new(k, v))
+                .map_err(dataset_err(&run_dir))?;
+        }
+        if all_current {
             summary.skipped += 1;
             continue;
         }
@@ -685,15 +791,10 @@ pub fn dipole_products(
                     why: format!("it has no geometry for camera `{}`", key.camera),
                 }
             })?;
-            let table = axis_angle(
-                &run_dir,
-                &key.meta,
-                &key.frames[0].path,
-                setup.turntable_axis,
-            )?;
+            let (view, table) = view_of(&run_dir, key, setup.turntable_axis)?;
             let size = (key.meta.width as usize, key.meta.height as usize);
             let plane = planes
-                .entry((key.camera.clone(), (table * 1000.0).round() as i64))
+                .entry(view)
                 .or_insert_with(|| plane_pixels(geometry, table, size, radius));
             if plane.len() != size.0 * size.1 {
                 return Err(ProcessingError::Dataset {
@@ -778,6 +879,11 @@ pub fn dipole_products(
                 }
             };
             frames_used += 1;
+            let mut view = if setup.exit {
+                views.get_mut(&view_of(&run_dir, key, setup.turntable_axis)?.0)
+            } else {
+                None
+            };
             let bins = per_camera.entry(key.camera.clone()).or_default();
             for p in &line.pixels {
                 if p.s.abs() > options.window_mm || p.across_mm > options.max_footprint_mm {
@@ -789,6 +895,9 @@ pub fn dipole_products(
                 bins.add(options.bin_mm, p.s, v, p);
                 if !(p.clipped || p.black) {
                     seen.push((p.s, v));
+                    if let Some(view) = view.as_mut() {
+                        view.pixels.push((p.index, p.s, v));
+                    }
                 }
             }
         }
@@ -828,6 +937,36 @@ pub fn dipole_products(
             run: run_dir.display().to_string(),
             message: format!("dipole product of {nm} nm: {e}"),
         })?;
+        let medium = DipoleMedium {
+            alpha_p: fit.alpha_p,
+            sigma_t_p: fit.sigma_t_p,
+            eta: options.eta,
+        };
+        for (k, view) in &views {
+            let maps = exit_maps(view, &medium, line_width_mm, core_mm);
+            let made = exit_new(k, view);
+            let metadata = json!({
+                "camera": k.0,
+                "colour_nm": nm,
+                "channels": {
+                    "exit": "light leaving each point over what the fitted homogeneous medium sends (the mesostructure's exit function); 0 where no line lit it",
+                    "weight": "the fitted medium's light summed over the lines, over its largest in the map: how well the point was lit",
+                },
+            })
+            .to_string();
+            let (w, h) = view.size;
+            let exr = encode_exr_planes(
+                &made.file_name,
+                w as u32,
+                h as u32,
+                &["exit".to_string(), "weight".to_string()],
+                &maps,
+                &metadata,
+            )
+            .map_err(dataset_err(&run_dir))?;
+            store.write(made, &exr).map_err(dataset_err(&run_dir))?;
+            summary.exit_written += 1;
+        }
         store.write(new, &bytes).map_err(dataset_err(&run_dir))?;
         summary.written += 1;
         summary.fits.push((nm, fit, rerender));
@@ -987,6 +1126,42 @@ mod tests {
         // A saturated reference is refused, not integrated.
         let e = reference_line(&line, &options()).unwrap_err();
         assert!(e.contains("clipped"), "{e}");
+    }
+
+    #[test]
+    fn the_exit_function_is_the_light_sent_over_the_fitted_medium_s() {
+        // Pixel k sits 0.1·k mm from one line and 0.1·k + 3 mm from another; it sends 70 % of
+        // what the medium predicts. Beyond the core and where lit, the exit function is 0.7.
+        let medium = DipoleMedium {
+            alpha_p: 0.6,
+            sigma_t_p: 1.2,
+            eta: 1.3,
+        };
+        let mut pixels = Vec::new();
+        for k in 0..100 {
+            for offset in [0.0, 3.0] {
+                let s = 0.1 * k as f64 + offset;
+                pixels.push((k, s, 0.7 * blurred_profile(&medium, s, 0.2)));
+            }
+        }
+        let view = ExitView {
+            size: (100, 1),
+            table_deg: 0.0,
+            truth_frame: String::new(),
+            pixels,
+        };
+        let maps = exit_maps(&view, &medium, 0.2, 0.8);
+        for k in 0..100 {
+            let (exit, weight) = (maps[2 * k], maps[2 * k + 1]);
+            assert!((0.0..=1.0).contains(&weight), "{k}: {weight}");
+            if weight >= EXIT_MIN_WEIGHT as f32 {
+                assert!((exit - 0.7).abs() < 1e-5, "{k}: {exit}");
+            } else {
+                assert_eq!(exit, 0.0, "{k}: unlit, {weight}");
+            }
+        }
+        // Inside the core only the far line lights the pixel; far out, nothing does.
+        assert!(maps[1] > 0.0 && maps[2 * 99 + 1] < EXIT_MIN_WEIGHT as f32);
     }
 
     #[test]

@@ -83,6 +83,11 @@ pub enum Product {
     /// incidence, the laser's power measured on the reference of `--reference-albedo`; through
     /// the response calibration and the geometry calibration's cameras, else the rig file's.
     Dipole,
+    /// With the dipole fit, the mesostructure's exit function of each view (a camera at a
+    /// turntable angle) from its sweep at normal incidence: `products/exit/<nm>nm_<cam>_<deg>deg.exr`
+    /// (`exit`: the light each point sent over what the fitted homogeneous medium sends,
+    /// `weight`: how well the lines lit it; 0 where they did not), in the camera's pixels.
+    Exit,
 }
 
 /// `--depth-method`.
@@ -412,7 +417,7 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
     } else {
         None
     };
-    let dipole = if want(Product::Dipole) {
+    let dipole = if want(Product::Dipole) || want(Product::Exit) {
         Some(dipole_fits(
             &args,
             &found,
@@ -566,6 +571,7 @@ fn dipole_fits(
             ..DipoleOptions::default()
         },
         cameras: (!args.cameras.is_empty()).then_some(args.cameras.as_slice()),
+        exit: args.products.contains(&Product::Exit),
     };
     let bar = progress_bar("colours");
     let made = dipole_products(store, setup, software, &mut |done, total| {
@@ -694,8 +700,8 @@ fn print_report(report: &Report, args: &ProcessArgs) {
     }
     if let Some(d) = &report.dipole {
         println!(
-            "dipole: {} colours written, {} already current",
-            d.written, d.skipped
+            "dipole: {} colours written, {} already current; {} exit maps written",
+            d.written, d.skipped, d.exit_written
         );
         for (nm, f, r) in &d.fits {
             let flags: Vec<String> = f.flags.iter().map(|f| format!("{f:?}")).collect();

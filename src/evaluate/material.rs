@@ -269,3 +269,51 @@ pub fn evaluate_transparency(run_dir: &Path) -> Result<Option<TransparencyFigure
         },
     }))
 }
+
+/// The exit-function maps (`process --products exit`) against the material plane's
+/// `meso_out`. The maps are relative to the fitted homogeneous medium, whose level carries the
+/// mesostructure's mean, so they are compared in shape: each map over its median ratio to the
+/// truth.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ExitFigures {
+    /// Maps compared.
+    pub maps: usize,
+    /// Pixels the lines lit enough to measure, on the sample.
+    pub pixels: usize,
+    /// The median of the maps' exit over the true exit function (the scale left out).
+    pub scale: f64,
+    /// Relative error of the exit function after that scale, pooled over the maps.
+    pub error: Option<Spread>,
+}
+
+/// Evaluates the run's `exit` products, if it has any and ground truth beside them.
+pub fn evaluate_exit(run_dir: &Path) -> Result<Option<ExitFigures>, EvaluateError> {
+    let Some(pairs) = pairs(run_dir, "exit")? else {
+        return Ok(None);
+    };
+    let (mut pixels, mut errors, mut scales) = (0, Vec::new(), Vec::new());
+    for Pair { product, truth } in &pairs {
+        let (exit, weight) = (channel(product, "exit")?, channel(product, "weight")?);
+        let meso = channel(truth, "meso_out")?;
+        let medium = channel(truth, "medium")?;
+        let ratios: Vec<(f64, f64)> = (0..exit.len())
+            .filter(|&i| exit[i] > 0.0 && weight[i] > 0.0 && medium[i] > 0.0 && meso[i] > 0.0)
+            .map(|i| (f64::from(exit[i]), f64::from(meso[i])))
+            .collect();
+        let mut r: Vec<f64> = ratios.iter().map(|(e, m)| e / m).collect();
+        r.sort_by(f64::total_cmp);
+        let Some(&scale) = r.get(r.len() / 2) else {
+            continue;
+        };
+        scales.push(scale);
+        pixels += ratios.len();
+        errors.extend(ratios.iter().map(|(e, m)| (e / scale - m).abs() / m));
+    }
+    scales.sort_by(f64::total_cmp);
+    Ok(Some(ExitFigures {
+        maps: pairs.len(),
+        pixels,
+        scale: scales.get(scales.len() / 2).copied().unwrap_or(0.0),
+        error: Spread::of(errors),
+    }))
+}

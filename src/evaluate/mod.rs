@@ -26,7 +26,8 @@ pub use geometry::{CameraFigures, GeometryFigures, evaluate_geometry, truth_geom
 pub use hdr::{ErrorFigures, HdrFigures, evaluate_hdr};
 pub use laser_planes::{LaserPlaneFigures, evaluate_laser_planes};
 pub use material::{
-    Spread, TransparencyFigures, WardFigures, evaluate_transparency, evaluate_ward,
+    ExitFigures, Spread, TransparencyFigures, WardFigures, evaluate_exit, evaluate_transparency,
+    evaluate_ward,
 };
 pub use rectified::{RectifiedFigures, evaluate_rectified};
 pub use response::{ChannelFigures, ResponseFigures, evaluate_response};
@@ -76,6 +77,8 @@ pub struct Report {
     pub transparency: Option<TransparencyFigures>,
     /// The dipole fits against the simulated sample's medium.
     pub dipole: Option<DipoleFigures>,
+    /// The mesostructure's exit-function maps against the material plane.
+    pub exit: Option<ExitFigures>,
 }
 
 /// The run's reader and its products of `kind`; `None` when it has none.
@@ -137,6 +140,7 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
         ward: None,
         transparency: None,
         dipole: None,
+        exit: None,
     };
     for stored in calibration_store::list(&root)?.into_iter().flatten() {
         if !stored.calibration.inputs.iter().any(|i| i.run_id == run_id)
@@ -168,5 +172,6 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
     report.ward = evaluate_ward(run_dir)?;
     report.transparency = evaluate_transparency(run_dir)?;
     report.dipole = evaluate_dipole(run_dir)?;
+    report.exit = evaluate_exit(run_dir)?;
     Ok(report)
 }

@@ -10,22 +10,43 @@ use std::path::Path;
 
 use super::common::calibration::{as_built_rig_with, exact_geometry, stagehand, stagehand_output};
 use super::common::run_sequence;
+use stagehand::rig::RigSource;
 
 fn path(p: &Path) -> &str {
     p.to_str().expect("utf-8 path")
 }
 
 /// A flat sample of felt's medium (seed 004's Monte Carlo material in red: α′ 0.4248,
-/// σ′t 1.0 mm⁻¹; blue: α′ 0.99, σ′t 2.13 mm⁻¹), without felt's weave and mesostructure.
-fn flat_felt(dir: &Path) -> String {
-    let file = dir.join("flat_felt.toml");
-    let text = "[scene]\nname = \"flat_felt\"\n\n[sample]\nshape = \"flat\"\n\n\
+/// σ′t 1.0 mm⁻¹; blue: α′ 0.99, σ′t 2.13 mm⁻¹) named `name`, with the `meso` table's lines
+/// (none: homogeneous, without felt's weave and mesostructure).
+fn felt(dir: &Path, name: &str, meso: &str) -> String {
+    let file = dir.join(format!("{name}.toml"));
+    let text = format!(
+        "[scene]\nname = \"{name}\"\n\n[sample]\nshape = \"flat\"\n\n\
         [material]\nmodel = \"lambert\"\n\n\
         [material.subsurface]\nsigma_a = [0.5752, 0.8628, 0.0213]\n\
-        sigma_s_prime = [0.4248, 0.6372, 2.1087]\neta = 1.3\n\n\
-        [render.knobs]\ndipole_samples = 32\n";
+        sigma_s_prime = [0.4248, 0.6372, 2.1087]\neta = 1.3\n\n{meso}\
+        [render.knobs]\ndipole_samples = 32\n"
+    );
     std::fs::write(&file, text).expect("write scene");
     path(&file).to_string()
+}
+
+/// The as-built light stage at 480×360 with ground truth, its sample `scene` 60 mm wide.
+fn rig(scene: &str) -> RigSource {
+    as_built_rig_with("gentle", 12, |t| {
+        t.replace("sample = \"bumps\"", &format!("sample = \"{scene}\""))
+            .replace("sample_size_mm = 80.0", "sample_size_mm = 60.0")
+            .replacen("[sim]\n", "[sim]\nground_truth = true\n", 1)
+    })
+}
+
+/// A response sweep on `rig` and `calibrate response`: the calibration's id.
+fn response(out: &Path, rig: RigSource) -> String {
+    let sweep = run_sequence("calibration_response.rhai", rig, &[], out, 1);
+    sweep.result.as_ref().expect("the response sweep runs");
+    let response = stagehand(&["calibrate", "response", path(&sweep.dir), "--json"]);
+    response["id"].as_str().expect("an id").to_string()
 }
 
 #[test]
@@ -33,22 +54,12 @@ fn the_dipole_comes_back_from_laser_lines_on_a_simulated_medium() {
     let _turn = crate::grbl_peer::alongside();
     let out = tempfile::tempdir().unwrap();
     let out = out.path();
-    let scene = flat_felt(out);
-    let rig = || {
-        as_built_rig_with("gentle", 12, |t| {
-            t.replace("sample = \"bumps\"", &format!("sample = \"{scene}\""))
-                .replace("sample_size_mm = 80.0", "sample_size_mm = 60.0")
-                .replacen("[sim]\n", "[sim]\nground_truth = true\n", 1)
-        })
-    };
-    let sweep = run_sequence("calibration_response.rhai", rig(), &[], out, 1);
-    sweep.result.as_ref().expect("the response sweep runs");
-    let response = stagehand(&["calibrate", "response", path(&sweep.dir), "--json"]);
-    let response = response["id"].as_str().expect("an id").to_string();
+    let scene = felt(out, "flat_felt", "");
+    let response = response(out, rig(&scene));
 
     let run = run_sequence(
         "quasi_homogeneous.rhai",
-        rig(),
+        rig(&scene),
         &[
             ("colours", "650,473"),
             ("step1", "false"),
@@ -141,4 +152,60 @@ fn the_dipole_comes_back_from_laser_lines_on_a_simulated_medium() {
     // A rerun makes nothing again.
     let again = stagehand(&args);
     assert_eq!(again["dipole"]["skipped"], 2, "{again:#}");
+}
+
+/// Felt's medium under a mesostructure (value noise of 2 mm features, its exit and entrance
+/// between 0.5 and 1), flat: the exit function of each view against the material plane's.
+#[test]
+fn the_exit_function_comes_back_from_a_sweep_over_a_mesostructure() {
+    let _turn = crate::grbl_peer::alongside();
+    let out = tempfile::tempdir().unwrap();
+    let out = out.path();
+    let scene = felt(
+        out,
+        "meso_felt",
+        "[material.meso]\nprocedural = \"noise\"\ncontrast = 0.5\nscale_mm = 2.0\n\n",
+    );
+    let response = response(out, rig(&scene));
+    // Five lines 3 mm apart over the centre, from two views.
+    let run = run_sequence(
+        "quasi_homogeneous.rhai",
+        rig(&scene),
+        &[
+            ("colours", "650"),
+            ("step1", "false"),
+            ("step3", "false"),
+            ("views", "2"),
+            ("lines", "5"),
+            ("sweep_deg", "0.5"),
+            ("laser_exposure_s", "0.02"),
+        ],
+        out,
+        1,
+    );
+    run.result.as_ref().expect("step 2 runs");
+    let geometry = exact_geometry(&run.dir);
+    let made = stagehand(&[
+        "process",
+        path(&run.dir),
+        "--products",
+        "exit",
+        "--calibration",
+        &response,
+        "--calibration",
+        &geometry,
+        "--reference-albedo",
+        "0.8",
+        "--json",
+    ]);
+    assert_eq!(made["dipole"]["written"], 1, "{made:#}");
+    // Six cameras see the sample steeply enough (cam1 and cam2 are below 20°), two views.
+    assert_eq!(made["dipole"]["exit_written"], 12, "{made:#}");
+    let report = stagehand(&["evaluate", path(&run.dir)]);
+    let exit = &report["exit"];
+    eprintln!("exit: {exit:#}\ndipole: {:#}", report["dipole"]);
+    assert_eq!(exit["maps"], 12, "{exit:#}");
+    assert!(exit["pixels"].as_u64().unwrap() > 1000, "{exit:#}");
+    let error = exit["error"]["median"].as_f64().expect("an error");
+    assert!(error < 0.2, "{exit:#}");
 }
