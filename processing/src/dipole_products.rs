@@ -205,6 +205,8 @@ pub struct DipoleSummary {
 /// A pixel on the sample plane.
 #[derive(Debug, Clone, Copy)]
 struct PlanePixel {
+    /// Index in the image.
+    index: usize,
     /// Position on the sample plane (sample frame), mm.
     p: [f64; 2],
     /// Cosine of the view direction with the normal.
@@ -214,14 +216,15 @@ struct PlanePixel {
     dy: [f64; 2],
 }
 
-/// Where each pixel of a camera at a turntable angle meets the sample plane (`None`: it does
-/// not, or beyond `radius_mm` of the centre).
+/// Where the pixels of a camera at a turntable angle meet the sample plane, for those that
+/// meet it within `radius_mm` of the centre (the rest are not kept: a full-size camera's
+/// frame would hold tens of megabytes of them).
 fn plane_pixels(
     geometry: &CameraGeometry,
     table_deg: f64,
     (w, h): (usize, usize),
     radius_mm: f64,
-) -> Vec<Option<PlanePixel>> {
+) -> Vec<PlanePixel> {
     let pose = sample_to_camera(&geometry.rig_to_camera, table_deg);
     let hit = |x: f64, y: f64| -> Option<(Vector3<f64>, f64)> {
         let (c, d) = pixel_ray(&geometry.model, &pose, (x, y))?;
@@ -231,7 +234,7 @@ fn plane_pixels(
         .into_par_iter()
         .flat_map_iter(|y| {
             let hit = &hit;
-            (0..w).map(move |x| {
+            (0..w).filter_map(move |x| {
                 let (xf, yf) = (x as f64, y as f64);
                 let (p, cos_out) = hit(xf, yf)?;
                 if p.x.hypot(p.y) > radius_mm {
@@ -242,6 +245,7 @@ fn plane_pixels(
                 let (py, _) = hit(xf, yf + 0.5)?;
                 let (my, _) = hit(xf, yf - 0.5)?;
                 Some(PlanePixel {
+                    index: y * w + x,
                     p: [p.x, p.y],
                     cos_out,
                     dx: [px.x - mx.x, px.y - mx.y],
@@ -283,22 +287,25 @@ struct LineFrame {
 fn line_frame(
     radiance: &[f32],
     state: &[PixelState],
-    plane: &[Option<PlanePixel>],
+    plane: &[PlanePixel],
     channel: usize,
     options: &DipoleOptions,
 ) -> Result<LineFrame, String> {
-    let seen = |i: usize| {
-        plane[i]
-            .filter(|q| q.cos_out >= options.min_cos_out)
-            .map(|q| (q, state[i * 3 + channel] == PixelState::AtLeast))
+    let n = radiance.len().min(state.len()) / 3;
+    if let Some(q) = plane.iter().find(|q| q.index >= n) {
+        return Err(format!(
+            "pixel {} is beyond the frame's {n} pixels: the frame is smaller than its camera's others",
+            q.index
+        ));
+    }
+    let seen = |q: &PlanePixel| {
+        (q.cos_out >= options.min_cos_out)
+            .then(|| (*q, state[q.index * 3 + channel] == PixelState::AtLeast))
     };
-    let black = |i: usize| state[i * 3 + channel] == PixelState::AtMost;
-    let peak = (0..plane.len())
-        .filter_map(|i| {
-            seen(i)
-                .filter(|(_, c)| !c)
-                .map(|_| f64::from(radiance[i * 3 + channel]))
-        })
+    let value = |q: &PlanePixel| f64::from(radiance[q.index * 3 + channel]);
+    let peak = plane
+        .iter()
+        .filter_map(|q| seen(q).filter(|(_, c)| !c).map(|_| value(q)))
         .fold(0.0f64, f64::max);
     if !(peak > 0.0 && peak.is_finite()) {
         return Err("no laser light near the sample's centre".into());
@@ -306,15 +313,11 @@ fn line_frame(
     // Weighted moments of the pixels above half the peak.
     let (mut sw, mut sx, mut sy, mut sxx, mut syy, mut sxy, mut count) =
         (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0usize);
-    for i in 0..plane.len() {
-        let Some((q, clipped)) = seen(i) else {
+    for q in plane {
+        let Some((q, clipped)) = seen(q) else {
             continue;
         };
-        let v = if clipped {
-            peak
-        } else {
-            f64::from(radiance[i * 3 + channel])
-        };
+        let v = if clipped { peak } else { value(&q) };
         let w = v - 0.5 * peak;
         if w <= 0.0 {
             continue;
@@ -348,20 +351,21 @@ fn line_frame(
     }
     let centre_along = along([0.0, 0.0]);
     let reach = options.window_mm.max(options.reference_mm + 2.0) + options.bin_mm;
-    let pixels = (0..plane.len())
-        .filter_map(|i| {
-            let (q, clipped) = seen(i)?;
+    let pixels = plane
+        .iter()
+        .filter_map(|q| {
+            let (q, clipped) = seen(q)?;
             let (s, u) = (across(q.p), along(q.p) - centre_along);
             if u.abs() > options.strip_mm || s.abs() > reach {
                 return None;
             }
             let dot = |d: [f64; 2]| (d[0] * normal[0] + d[1] * normal[1]).abs();
             Some(LinePixel {
-                index: i,
+                index: q.index,
                 s,
-                radiance: f64::from(radiance[i * 3 + channel]),
+                radiance: value(&q),
                 clipped,
-                black: black(i),
+                black: state[q.index * 3 + channel] == PixelState::AtMost,
                 cos_out: q.cos_out,
                 across_mm: dot(q.dx) + dot(q.dy),
                 area_mm2: (q.dx[0] * q.dy[1] - q.dx[1] * q.dy[0]).abs(),
@@ -619,6 +623,9 @@ fn rerender(
     }
 }
 
+/// Each camera's plane pixels at its latest view: (turntable key, frame size, pixels).
+type Planes = BTreeMap<String, (i64, (usize, usize), Vec<PlanePixel>)>;
+
 /// A capture's view: its camera and turntable angle (in thousandths of a degree, a map key),
 /// and the angle.
 fn view_of(
@@ -683,7 +690,7 @@ pub fn dipole_products(
         .filter(|id| *id != NOMINAL)
         .map(String::from)
         .collect();
-    let mut planes: BTreeMap<(String, i64), Vec<Option<PlanePixel>>> = BTreeMap::new();
+    let mut planes = Planes::new();
     let radius = options
         .strip_mm
         .hypot(options.window_mm.max(options.reference_mm + 2.0))
@@ -783,7 +790,7 @@ pub fn dipole_products(
         }
         let mut left_out = Vec::new();
         let line_of = |key: &BracketKey,
-                       planes: &mut BTreeMap<(String, i64), Vec<Option<PlanePixel>>>|
+                       planes: &mut Planes|
          -> Result<Result<LineFrame, String>, ProcessingError> {
             let geometry = geometries.get(&key.camera).ok_or_else(|| {
                 ProcessingError::CalibrationMismatch {
@@ -791,20 +798,16 @@ pub fn dipole_products(
                     why: format!("it has no geometry for camera `{}`", key.camera),
                 }
             })?;
-            let (view, table) = view_of(&run_dir, key, setup.turntable_axis)?;
+            let ((camera, table_key), table) = view_of(&run_dir, key, setup.turntable_axis)?;
             let size = (key.meta.width as usize, key.meta.height as usize);
-            let plane = planes
-                .entry(view)
-                .or_insert_with(|| plane_pixels(geometry, table, size, radius));
-            if plane.len() != size.0 * size.1 {
-                return Err(ProcessingError::Dataset {
-                    run: run_dir.display().to_string(),
-                    message: format!(
-                        "capture {} is {}×{}, unlike the camera's other frames",
-                        key.frames[0].path, size.0, size.1
-                    ),
-                });
+            // One view per camera is kept: a view's frames come one after another.
+            let cached = planes
+                .entry(camera)
+                .or_insert_with(|| (i64::MIN, (0, 0), Vec::new()));
+            if (cached.0, cached.1) != (table_key, size) {
+                *cached = (table_key, size, plane_pixels(geometry, table, size, radius));
             }
+            let plane = &cached.2;
             let response = camera_response(setup.response, &key.camera)?;
             let (hdr, _) =
                 merge_capture(&reader, key, response).map_err(|e| ProcessingError::Dataset {
@@ -980,7 +983,7 @@ mod tests {
     use super::*;
 
     /// A flat field of pixels 0.1 mm apart, seen from straight above.
-    fn grid(half_mm: f64) -> (Vec<Option<PlanePixel>>, usize) {
+    fn grid(half_mm: f64) -> (Vec<PlanePixel>, usize) {
         let n = (2.0 * half_mm / 0.1) as usize + 1;
         let plane = (0..n * n)
             .map(|i| {
@@ -988,12 +991,13 @@ mod tests {
                     (i % n) as f64 * 0.1 - half_mm,
                     (i / n) as f64 * 0.1 - half_mm,
                 );
-                Some(PlanePixel {
+                PlanePixel {
+                    index: i,
                     p: [x, y],
                     cos_out: 1.0,
                     dx: [0.1, 0.0],
                     dy: [0.0, 0.1],
-                })
+                }
             })
             .collect();
         (plane, n)
@@ -1001,17 +1005,16 @@ mod tests {
 
     /// Radiance of a line along direction `angle` through `(ox, oy)` with cross profile `f`.
     fn render(
-        plane: &[Option<PlanePixel>],
+        plane: &[PlanePixel],
         (ox, oy): (f64, f64),
         angle: f64,
         f: impl Fn(f64) -> f64,
     ) -> (Vec<f32>, Vec<PixelState>) {
         let normal = [-angle.sin(), angle.cos()];
         let mut rgb = vec![0.0f32; plane.len() * 3];
-        for (i, q) in plane.iter().enumerate() {
-            let q = q.expect("pixel");
+        for q in plane {
             let s = (q.p[0] - ox) * normal[0] + (q.p[1] - oy) * normal[1];
-            rgb[i * 3] = f(s) as f32;
+            rgb[q.index * 3] = f(s) as f32;
         }
         let state = vec![PixelState::Measured; rgb.len()];
         (rgb, state)
