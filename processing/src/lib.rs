@@ -40,6 +40,8 @@
 //! | [`zarr_array`] | Zarr v3 arrays described and encoded (uncompressed chunks) for the BTF |
 //! | [`btf_layout`] | which capture fills each BTF cell, views and lights in sample-frame angles |
 //! | [`dipole`] | the dipole's R_d, its total reflectance and its line-source profile |
+//! | [`dipole_profile`] | a laser line's falloff on the sample plane from frames, binned and fitted |
+//! | [`dipole_exit`] | a view's exit function: the light sent over the fitted medium's |
 //! | [`dipole_products`] | `process --products dipole`: α′ and σ′t per laser colour from the lines at normal incidence |
 //! | [`dipole_fit`] | α′ and σ′t from a laser line's lateral falloff |
 //! | [`ward`] | the isotropic Ward lobe of the reflectometer fit |
@@ -63,8 +65,10 @@ pub mod colour_calibration;
 pub mod corner_subpix;
 pub mod depth_products;
 pub mod dipole;
+pub mod dipole_exit;
 pub mod dipole_fit;
 pub mod dipole_products;
+pub mod dipole_profile;
 pub mod error;
 pub mod geometry_calibration;
 pub mod gray_image;

@@ -323,7 +323,6 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
     let software = format!("stagehand {}", env!("CARGO_PKG_VERSION"));
     let mut summary = ProductSummary::default();
     if let Some((responses, response_id)) = found.response.as_ref().filter(|_| merging) {
-        let bar = progress_bar("captures");
         let cal = HdrCalibrations {
             response: (responses, response_id),
             colour: found.colour.as_ref().map(|(set, id)| (set, id.as_str())),
@@ -336,12 +335,10 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
             rectification,
             cameras,
         };
-        summary = capture_products(&mut store, cal, outputs, &software, &mut |done, total| {
-            bar.set_length(total as u64);
-            bar.set_position(done as u64);
+        summary = with_progress("captures", |progress| {
+            capture_products(&mut store, cal, outputs, &software, progress)
         })
         .map_err(processing_err)?;
-        bar.finish_and_clear();
     }
     let depth = if want(Product::Depth) || mdf {
         let (geometry, geometry_id) = found.geometry.as_ref().ok_or_else(|| {
@@ -373,13 +370,10 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
                 DepthMethodArg::PerFrame => DepthMethod::PerFrame,
             },
         };
-        let bar = progress_bar("sweeps");
-        let made = depth_products(&mut store, setup, &software, &mut |done, total| {
-            bar.set_length(total as u64);
-            bar.set_position(done as u64);
+        let made = with_progress("sweeps", |progress| {
+            depth_products(&mut store, setup, &software, progress)
         })
         .map_err(processing_err)?;
-        bar.finish_and_clear();
         Some(made)
     } else {
         None
@@ -392,13 +386,10 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
                 merge: MergeOptions::default(),
                 cameras,
             };
-            let bar = progress_bar("views");
-            let made = mdf_products(&mut store, setup, &software, &mut |done, total| {
-                bar.set_length(total as u64);
-                bar.set_position(done as u64);
+            let made = with_progress("views", |progress| {
+                mdf_products(&mut store, setup, &software, progress)
             })
             .map_err(processing_err)?;
-            bar.finish_and_clear();
             Some(made)
         }
         _ => None,
@@ -490,13 +481,10 @@ fn reflectometer_maps(
         options: WardFitOptions::default(),
         cameras: (!args.cameras.is_empty()).then_some(args.cameras.as_slice()),
     };
-    let bar = progress_bar("cameras");
-    let made = reflectometer_products(store, setup, software, &mut |done, total| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
+    let made = with_progress("cameras", |progress| {
+        reflectometer_products(store, setup, software, progress)
     })
     .map_err(processing_err)?;
-    bar.finish_and_clear();
     Ok(made)
 }
 
@@ -573,14 +561,23 @@ fn dipole_fits(
         cameras: (!args.cameras.is_empty()).then_some(args.cameras.as_slice()),
         exit: args.products.contains(&Product::Exit),
     };
-    let bar = progress_bar("colours");
-    let made = dipole_products(store, setup, software, &mut |done, total| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
+    let made = with_progress("colours", |progress| {
+        dipole_products(store, setup, software, progress)
     })
     .map_err(processing_err)?;
-    bar.finish_and_clear();
     Ok(made)
+}
+
+/// Runs `work` with a progress bar on stderr counting `what` (`work` reports done and total),
+/// cleared when the work ends, however it ends.
+fn with_progress<T>(what: &str, work: impl FnOnce(&mut dyn FnMut(usize, usize)) -> T) -> T {
+    let bar = progress_bar(what);
+    let made = work(&mut |done, total| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    });
+    bar.finish_and_clear();
+    made
 }
 
 /// A progress bar on stderr counting `what`.
