@@ -63,7 +63,9 @@ async fn executor_metrics_reach_the_metrics_endpoint() {
 /// run exactly once.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_daemon_run_is_listed_served_and_counted() {
-    let _turn = crate::grbl_peer::alongside();
+    // Alone: the metrics are the process's, and a run of another test beside this one would
+    // count its frames and steps too.
+    let _turn = crate::grbl_peer::exclusive();
     // The shared dataset first, so its (in-process) run is not counted below.
     let _ = dataset();
     let tmp = tempfile::tempdir().expect("temp dir");
