@@ -3,15 +3,17 @@
 //!
 //! The response is linear in the ρ's for a given α ([`crate::ward_tube`]), so for each α the
 //! four ρ's are solved in closed form (least squares, none negative) and α alone is searched:
-//! a log grid over the whole range, then golden section. Gardner starts a non-linear fit from
-//! the diffuse and specular peaks; the global search in α needs no start and cannot stop in a
-//! local minimum. What the data cannot say is flagged, never hidden.
+//! a log grid over the whole range (the integrals coarse, the misfit's slope beside its
+//! value), then a cubic on the misfit and its slope in α (the integrals fine). Gardner starts
+//! a non-linear fit from the diffuse and specular peaks; the grid over the whole range needs
+//! no start, and finds the basin of a misfit with one. What the data cannot say is flagged,
+//! never hidden.
 
 use serde::{Deserialize, Serialize};
 
 use crate::error::ProcessingError;
-use crate::line_search::log_search;
-use crate::ward_tube::{Tube, ViewPoint};
+use crate::line_search::{Probe, sloped_log_search};
+use crate::ward_tube::{Lobe, Quadrature, Tube, ViewPoint};
 
 /// One cart stop of one pixel: where the tube was and what the pixel saw (radiance per unit
 /// of the tube's calibrated intensity per millimetre, per channel).
@@ -96,8 +98,10 @@ pub const MIN_SAMPLES: usize = 6;
 /// for the fit to report one: well above the 1 %-level critical value (about 4.6), so that
 /// noise on a matte sample is not read as a faint lobe.
 const MIN_LOBE_F: f64 = 10.0;
-const GRID: usize = 10;
-const GOLDEN_STEPS: usize = 8;
+/// The α search: a grid of 6 points over the range (steps of about 2.9× over the default
+/// range), then the sloped refinement to 10⁻⁴ in ln α.
+const GRID: usize = 6;
+const ALPHA_TOLERANCE: f64 = 1e-4;
 
 /// Fits a pixel seen at `view` under `tube` to its `samples`. Errors when a sample is not
 /// finite or too few samples are usable; every weaker case is a flag on the result.
@@ -167,15 +171,42 @@ pub fn fit_ward(
         .map(|s| tube.diffuse(view, s.tube_x_mm) / std::f64::consts::PI)
         .collect();
     let data_sq: f64 = used.iter().flat_map(|s| s.rgb).map(|v| v * v).sum();
-    let solve = |alpha: f64| {
-        let specular: Vec<f64> = used
+    let lobes: Vec<Lobe> = used.iter().map(|s| tube.lobe(view, s.tube_x_mm)).collect();
+    let probe = |alpha: f64, quadrature: Quadrature| {
+        let row: Vec<(f64, f64)> = lobes
             .iter()
-            .map(|s| tube.specular(view, s.tube_x_mm, alpha))
+            .map(|lobe| tube.specular_of(view, lobe, alpha, quadrature))
             .collect();
-        Sums::new(&used, &diffuse, &specular).solve()
+        let specular: Vec<f64> = row.iter().map(|r| r.0).collect();
+        let solution = Sums::new(&used, &diffuse, &specular).solve();
+        // dSSE/d(ln α) with the ρ's held at their optimum (where SSE is flat in them):
+        // −2ρs·Σ_k (Σ_c residual_kc)·dS_k/d(ln α).
+        let rho_d_sum: f64 = solution.rho_d.iter().sum();
+        let slope = -2.0
+            * solution.rho_s
+            * used
+                .iter()
+                .zip(&diffuse)
+                .zip(&row)
+                .map(|((s, a), (b, db))| {
+                    (s.rgb.iter().sum::<f64>() - a * rho_d_sum - 3.0 * solution.rho_s * b) * db
+                })
+                .sum::<f64>();
+        Probe {
+            value: solution.sse,
+            slope,
+            payload: solution,
+        }
     };
-    let alpha = log_search(&|a: f64| solve(a).sse, lo, hi, GRID, GOLDEN_STEPS);
-    let best = solve(alpha);
+    let (alpha, best) = sloped_log_search(
+        &|a| probe(a, Quadrature::Coarse),
+        &|a| probe(a, Quadrature::Fine),
+        lo,
+        hi,
+        GRID,
+        ALPHA_TOLERANCE,
+    );
+    let best = best.payload;
     let relative_rms = (best.sse.max(0.0) / data_sq.max(f64::MIN_POSITIVE)).sqrt();
 
     // What the data cannot say.

@@ -8,7 +8,9 @@
 //!
 //! both linear in the ρ's, so the fit solves them in closed form for each α. D has a closed
 //! form; S is integrated by Gauss–Legendre panels on the window where the lobe is not
-//! negligible, about the point of the tube the mirror direction meets.
+//! negligible, about the lobe's peak along the tube ([`Tube::lobe`], found once per stop
+//! and pixel, whatever α), with its slope in α beside it (the fit's search steps by it).
+//! The nodes run branch-free in vector lanes: the fit's time is almost all here.
 
 use nalgebra::Vector3;
 
@@ -30,13 +32,15 @@ const GL_WEIGHTS: [f64; 4] = [
 /// The specular window's half-width in lobe widths (about e^−16 beyond: S within 10⁻⁵ of its
 /// peak, far below a sensor's noise).
 const WINDOW_WIDTHS: f64 = 4.0;
-/// Panels per lobe width (8 nodes over two widths integrate the Gaussian-like lobe to
-/// 10⁻⁸), and at most this many panels in all.
-const PANELS_PER_WIDTH: f64 = 0.5;
+/// Panels per lobe width (plus α: a wide lobe is less like a Gaussian), at least
+/// [`MIN_PANELS`] and at most [`MAX_PANELS`]: S within 10⁻⁵ of its peak
+/// (`the_integrals_match_a_fine_midpoint_sum`).
+const PANELS_PER_WIDTH: f64 = 0.25;
+const MIN_PANELS: usize = 2;
 const MAX_PANELS: usize = 256;
-/// tan²δ/α² at the tube's closest approach to the mirror point beyond which S is 0
-/// (e^−20 ≈ 2·10⁻⁹ of the peak).
-const NEGLIGIBLE_EXPONENT: f64 = 20.0;
+/// tan²δ/α² at the lobe's centre beyond which S is 0 (e^−16 ≈ 10⁻⁷ of the peak, where the
+/// tube is as far; a stop nearer the point may see 100 times more of the lobe's tail).
+const NEGLIGIBLE_EXPONENT: f64 = 16.0;
 
 /// The tube's fixed geometry.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -48,6 +52,31 @@ pub struct Tube {
     /// Radius of its glass, mm: the camera cannot see a point whose ray passes the tube's axis
     /// closer than this.
     pub radius_mm: f64,
+}
+
+/// How closely [`Tube::specular_of`] integrates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Quadrature {
+    /// Within 10⁻⁵ of the sweep's peak: what the fit's answer rests on.
+    Fine,
+    /// One 8-node panel over the lobe: within a few % where the lobe is narrow, enough to
+    /// find the basin of α, at a fraction of the cost.
+    Coarse,
+}
+
+/// One stop's specular lobe along the tube, whatever α ([`Tube::lobe`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Lobe {
+    /// The tube's x, mm.
+    tube_x: f64,
+    /// Where along the tube the lobe peaks, mm (within the tube).
+    centre: f64,
+    /// d²tan²δ/dl² there, where tan²δ grows.
+    curvature: Option<f64>,
+    /// Distance from the point to the tube's point there, mm.
+    distance: f64,
+    /// tan²δ there (infinite where the lobe is not seen).
+    tan2: f64,
 }
 
 /// A sample point and the direction to the camera that sees it.
@@ -112,73 +141,245 @@ impl Tube {
         (h * h * (prim(u1) - prim(u0))).max(0.0)
     }
 
+    /// Where along the tube at `tube_x` the lobe peaks (least tan²δ), and how fast tan²δ
+    /// grows there (d²tan²δ/dl², `None` where it does not): the lobe's centre and width. It
+    /// starts from the point whose direction from the sample point is nearest the mirror
+    /// direction m of `wo`: with v = (vx, u, h) and u = l − p.y, cos∠(v, m) =
+    /// (A + m_y·u)/√(C + u²), A = vx·m_x + h·m_z, C = vx² + h², is largest at u = m_y·C/A.
+    /// Two Newton steps on tan²δ then move it to the peak (the half vector weighs the two
+    /// directions across the lobe unequally). At the mirror stop this is the mirror point's
+    /// y; away from it, for a camera off the tube's plane, the lobe moves along the tube and
+    /// widens.
+    fn lobe_centre(&self, view: &ViewPoint, tube_x: f64) -> (f64, Option<f64>) {
+        let h = self.height_mm - view.p.z;
+        let vx = tube_x - view.p.x;
+        let wo = view.wo;
+        let (mx, my, mz) = (-wo.x, -wo.y, wo.z);
+        let a = vx * mx + h * mz;
+        let c = vx * vx + h * h;
+        if a.is_nan() || a <= 1e-9 * (vx.abs() + h) {
+            return (view.mirror_point(self.height_mm).1, None);
+        }
+        let tan2 = |u: f64| {
+            let r = (c + u * u).sqrt();
+            let (hx, hy, hz) = (vx + wo.x * r, u + wo.y * r, h + wo.z * r);
+            (hx * hx + hy * hy) / (hz * hz)
+        };
+        let mut u = my * c / a;
+        let step = 1e-3 * c.sqrt();
+        let mut curvature = None;
+        for _ in 0..2 {
+            let (below, at, above) = (tan2(u - step), tan2(u), tan2(u + step));
+            let second = (above - 2.0 * at + below) / (step * step);
+            if !(second > 0.0 && second.is_finite()) {
+                curvature = None;
+                break;
+            }
+            curvature = Some(second);
+            // A step that does not lower tan²δ (far from the peak, where tan²δ is not a
+            // parabola) is not taken.
+            let next = u - 0.5 * (above - below) / step / second;
+            if !(next.is_finite() && tan2(next) < at) {
+                break;
+            }
+            u = next;
+        }
+        (view.p.y + u, curvature)
+    }
+
     /// S(α): the specular integral ∫ h²/r⁴·ψ(wi, wo; α) dl over the tube at `tube_x`.
     pub fn specular(&self, view: &ViewPoint, tube_x: f64, alpha: f64) -> f64 {
-        let (_, y_mirror) = view.mirror_point(self.height_mm);
+        self.specular_slope(view, tube_x, alpha).0
+    }
+
+    /// S(α) and its slope dS/d(ln α) over the tube at `tube_x`: the fit's search in α steps
+    /// by the slope, which costs one multiply per node beside S.
+    pub fn specular_slope(&self, view: &ViewPoint, tube_x: f64, alpha: f64) -> (f64, f64) {
+        self.specular_of(view, &self.lobe(view, tube_x), alpha, Quadrature::Fine)
+    }
+
+    /// The lobe of the tube at `tube_x` as seen from `view`, whatever α: computed once per
+    /// stop and pixel, it serves every α the fit tries.
+    pub fn lobe(&self, view: &ViewPoint, tube_x: f64) -> Lobe {
         let half = 0.5 * self.length_mm;
-        let centre = y_mirror.clamp(-half, half);
-        let q = |l: f64| Vector3::new(tube_x, l, self.height_mm);
-        // The lobe's closest approach: past it, nothing.
-        let closest = q(centre) - view.p;
+        let (centre, curvature) = self.lobe_centre(view, tube_x);
+        let centre = centre.clamp(-half, half);
+        let closest = Vector3::new(tube_x, centre, self.height_mm) - view.p;
+        let unseen = Lobe {
+            tube_x,
+            centre,
+            curvature,
+            distance: closest.norm(),
+            tan2: f64::INFINITY,
+        };
         let Some(wi) = closest.try_normalize(1e-12) else {
-            return 0.0;
+            return unseen;
         };
         let hv = wi + view.wo;
         let hn = hv.z;
-        if hn.is_nan() || hn <= 0.0 {
-            return 0.0;
+        if hn.is_nan() || hn <= 0.0 || self.height_mm - view.p.z <= 0.0 {
+            return unseen;
         }
-        let tan2 = (hv.norm_squared() - hn * hn).max(0.0) / (hn * hn);
-        let alpha = alpha.max(crate::ward::MIN_ALPHA);
-        if tan2 / (alpha * alpha) > NEGLIGIBLE_EXPONENT {
-            return 0.0;
+        Lobe {
+            tan2: (hv.norm_squared() - hn * hn).max(0.0) / (hn * hn),
+            ..unseen
         }
-        // Along the tube, δ grows about Δl/(2r): the lobe is 2rα wide in l.
-        let width = 2.0 * closest.norm() * alpha;
+    }
+
+    /// S(α) and dS/d(ln α) of a [`Tube::lobe`] of this point, to `quadrature`'s accuracy.
+    pub fn specular_of(
+        &self,
+        view: &ViewPoint,
+        lobe: &Lobe,
+        alpha: f64,
+        quadrature: Quadrature,
+    ) -> (f64, f64) {
+        let half = 0.5 * self.length_mm;
+        let h = self.height_mm - view.p.z;
+        let Lobe {
+            tube_x,
+            centre,
+            curvature,
+            distance,
+            tan2,
+        } = *lobe;
+        let alpha = if alpha.is_nan() {
+            crate::ward::MIN_ALPHA
+        } else {
+            alpha.max(crate::ward::MIN_ALPHA)
+        };
+        // Past the lobe (or where it is not seen), nothing.
+        let exponent = tan2 / (alpha * alpha);
+        if exponent.is_nan() || exponent > NEGLIGIBLE_EXPONENT {
+            return (0.0, 0.0);
+        }
+        // The lobe is a Gaussian in l of standard deviation α/√(d²tan²δ/dl²) near its
+        // peak, √2 times which is its width; in the plane of incidence, where δ grows as
+        // Δl/(2r), that is 2rα. The window spans the wider of the two, the panels are as
+        // dense as the narrower, or the falloff h²/r⁴, needs (a wide lobe is far from a
+        // Gaussian).
+        let in_plane = 2.0 * distance * alpha;
+        let curved = curvature.map_or(in_plane, |k| {
+            (std::f64::consts::SQRT_2 * alpha / k.sqrt()).min(self.length_mm)
+        });
+        // No wider than the tube's own falloff (h²/r⁴, about r) for the panels.
+        let narrow = in_plane.min(curved).min(distance);
+        let wide = in_plane.max(curved);
         let (lo, hi) = (
-            (centre - WINDOW_WIDTHS * width).max(-half),
-            (centre + WINDOW_WIDTHS * width).min(half),
+            (centre - WINDOW_WIDTHS * wide).max(-half),
+            (centre + WINDOW_WIDTHS * wide).min(half),
         );
         if hi <= lo {
-            return 0.0;
+            return (0.0, 0.0);
         }
-        let panels = (((hi - lo) / width * PANELS_PER_WIDTH).ceil() as usize).clamp(4, MAX_PANELS);
-        let step = (hi - lo) / panels as f64;
-        let h2 = (self.height_mm - view.p.z).powi(2);
-        // ψ of `ward_iso` with n = +z, inlined: its normalisation over the node's cos θi, and
-        // the exponential in f32 (seven digits, far below a sensor's noise), which is most of
-        // the fit's time.
-        let (wo, alpha2) = (view.wo, alpha * alpha);
-        let norm = 4.0 * std::f64::consts::PI * alpha2 * wo.z.max(MIN_COS).sqrt();
-        let integrand = |l: f64| {
-            let v = q(l) - view.p;
-            let r2 = v.norm_squared();
-            if r2 <= 1e-24 {
-                return 0.0;
-            }
-            let wi = v / r2.sqrt();
-            let (hx, hy, hn) = (wi.x + wo.x, wi.y + wo.y, wi.z + wo.z);
-            if wi.z <= 0.0 || hn <= 0.0 {
-                return 0.0;
-            }
-            let exponent = (hx * hx + hy * hy) / (hn * hn) / alpha2;
-            if exponent >= 700.0 {
-                return 0.0;
-            }
-            let psi = f64::from((-exponent as f32).exp()) / (norm * wi.z.max(MIN_COS).sqrt());
-            h2 / (r2 * r2) * psi
+        // A wide lobe is far from a Gaussian in l: more panels as α grows.
+        let panels = match quadrature {
+            Quadrature::Fine => (((hi - lo) / narrow * (PANELS_PER_WIDTH + alpha)).ceil() as usize)
+                .clamp(MIN_PANELS, MAX_PANELS),
+            Quadrature::Coarse => 1,
         };
-        let mut sum = 0.0;
-        for k in 0..panels {
-            let mid = lo + step * (k as f64 + 0.5);
-            for (x, w) in GL_NODES.iter().zip(GL_WEIGHTS) {
-                let d = 0.5 * step * x;
-                sum += w * (integrand(mid - d) + integrand(mid + d));
-            }
+        let step = (hi - lo) / panels as f64;
+        // ψ of `ward_iso` with n = +z, inlined and rearranged so that each node costs two
+        // square roots, two divisions and [`exp_neg`] (seven digits, far below a sensor's
+        // noise). With v = q − p, r = |v| and wi = v/r, cos θi = h/r, and
+        //   h²/r⁴ · 1/√cos θi = h^1.5 · r^−3.5,
+        //   tan²δ = ((vx + wo.x·r)² + (vy + wo.y·r)²) / (h + wo.z·r)².
+        let wo = view.wo;
+        let inv_alpha2 = 1.0 / (alpha * alpha);
+        let scale =
+            h * h.sqrt() / (4.0 * std::f64::consts::PI * alpha * alpha * wo.z.max(MIN_COS).sqrt());
+        let stop = StopGeometry {
+            vx: tube_x - view.p.x,
+            h,
+            py: view.p.y,
+            wo: [wo.x, wo.y, wo.z],
+            inv_alpha2,
+        };
+        let (sum, slope) = node_sums(&stop, lo, step, panels);
+        let (s, ds) = (0.5 * step * scale * sum, 0.5 * step * scale * slope);
+        if s.is_finite() && ds.is_finite() {
+            (s.max(0.0), ds)
+        } else {
+            (0.0, 0.0)
         }
-        let s = 0.5 * step * sum;
-        if s.is_finite() { s.max(0.0) } else { 0.0 }
     }
+}
+
+/// What the nodes of one stop share: the tube's offset from the point in x, its height
+/// above it, the point's y, the direction to the camera and 1/α².
+struct StopGeometry {
+    vx: f64,
+    h: f64,
+    py: f64,
+    wo: [f64; 3],
+    inv_alpha2: f64,
+}
+
+/// Σ w·e and Σ w·e·(2T/α² − 2) over `panels` Gauss–Legendre panels of `step` from `lo`, e
+/// the specular integrand without its constant factor: the fit's inner loop. Compiled for the
+/// wide vector units too and chosen at run time (`multiversion`): the nodes of a panel run
+/// in parallel lanes.
+#[multiversion::multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma"))]
+fn node_sums(stop: &StopGeometry, lo: f64, step: f64, panels: usize) -> (f64, f64) {
+    let StopGeometry {
+        vx,
+        h,
+        py,
+        wo,
+        inv_alpha2,
+    } = *stop;
+    let vx2h2 = vx * vx + h * h;
+    let (mut sum, mut slope) = (0.0, 0.0);
+    const N: usize = 2 * GL_NODES.len();
+    let (mut l, mut e, mut de) = ([0.0; N], [0.0; N], [0.0; N]);
+    for k in 0..panels {
+        let mid = lo + step * (k as f64 + 0.5);
+        for (j, x) in GL_NODES.iter().enumerate() {
+            l[2 * j] = mid - 0.5 * step * x;
+            l[2 * j + 1] = mid + 0.5 * step * x;
+        }
+        // The panel's nodes without a branch, in parallel lanes.
+        for ((l, e), de) in l.iter().zip(&mut e).zip(&mut de) {
+            let vy = l - py;
+            let r2 = vx2h2 + vy * vy;
+            let r = r2.sqrt();
+            let (hx, hy, hz) = (vx + wo[0] * r, vy + wo[1] * r, h + wo[2] * r);
+            // hz > 0: the tube is above the sample and the camera too.
+            let exponent = (hx * hx + hy * hy) / (hz * hz) * inv_alpha2;
+            let value = exp_neg(exponent) / (r2 * r * r.sqrt());
+            // d/d ln α of exp(−T/α²)/α² is that times 2T/α² − 2.
+            *e = value;
+            *de = value * (2.0 * exponent - 2.0);
+        }
+        for (j, w) in GL_WEIGHTS.iter().enumerate() {
+            sum += w * (e[2 * j] + e[2 * j + 1]);
+            slope += w * (de[2 * j] + de[2 * j + 1]);
+        }
+    }
+    (sum, slope)
+}
+
+/// e^−t for t ≥ 0 to about 10⁻⁷ relative, and 0 (or a subnormal) beyond t = 708: a
+/// polynomial on the reduced argument, scaled by 2ⁿ through the exponent bits, without a
+/// branch or a library call, so that the tube's nodes evaluate in parallel lanes.
+#[inline(always)]
+fn exp_neg(t: f64) -> f64 {
+    // Adding 1.5·2⁵² rounds to an integer, left in the low bits of the sum.
+    const ROUND: f64 = 6_755_399_441_055_744.0;
+    const LN2_HI: f64 = 0.693_147_180_369_123_8;
+    const LN2_LO: f64 = 1.908_214_929_270_587_7e-10;
+    let x = (-t).clamp(-708.0, 0.0);
+    let k = x * std::f64::consts::LOG2_E + ROUND;
+    let n = k - ROUND;
+    let r = x - n * LN2_HI - n * LN2_LO;
+    // Taylor to r⁷ on |r| ≤ ln2/2: within 2·10⁻⁹.
+    let p = 1.0
+        + r * (1.0
+            + r * (0.5
+                + r * (1.0 / 6.0
+                    + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0 + r / 5040.0))))));
+    // The low 12 bits of k's mantissa are n mod 4096; n + 1023 is the biased exponent.
+    p * f64::from_bits(k.to_bits().wrapping_add(1023) << 52)
 }
 
 #[cfg(test)]
@@ -266,15 +467,68 @@ mod tests {
                 (d / d_ref - 1.0).abs() < 1e-7,
                 "D at {tube_x}: {d} vs {d_ref}"
             );
+        }
+        // S along a whole sweep, from the reflectometer camera and from a low one off the
+        // tube's plane, over the α range the fit searches.
+        let low = ViewPoint::seen_from(
+            Vector3::new(-30.0, 25.0, 0.0),
+            Vector3::new(-500.0, 80.0, 200.0),
+        )
+        .expect("above");
+        for view in [view, low] {
+            for alpha in [0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.35, 0.6, 1.0] {
+                let sweep: Vec<(f64, f64, f64)> = (0..25)
+                    .map(|k| {
+                        let tube_x = -120.0 + 10.0 * k as f64 + 0.37;
+                        let exact =
+                            brute(&tube, integrand(&tube, &view, tube_x, Some(alpha)), 200_000);
+                        (tube_x, tube.specular(&view, tube_x, alpha), exact)
+                    })
+                    .collect();
+                let peak = sweep.iter().map(|s| s.2).fold(0.0f64, f64::max);
+                for (tube_x, s, s_ref) in sweep {
+                    assert!(
+                        (s - s_ref).abs() <= 1e-5 * peak,
+                        "S at {tube_x}, α {alpha}: {s} vs {s_ref} (peak {peak})"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_slope_in_alpha_matches_a_central_difference() {
+        let (tube, view) = setup();
+        let (xm, _) = view.mirror_point(tube.height_mm);
+        for tube_x in [xm - 20.0, xm - 2.0, xm, xm + 5.0] {
             for alpha in [0.01, 0.05, 0.3, 1.0] {
-                let s = tube.specular(&view, tube_x, alpha);
-                let s_ref = brute(&tube, integrand(&tube, &view, tube_x, Some(alpha)), 400_000);
+                let (_, slope) = tube.specular_slope(&view, tube_x, alpha);
+                let e = 1e-4;
+                let central = (tube.specular(&view, tube_x, alpha * f64::exp(e))
+                    - tube.specular(&view, tube_x, alpha * f64::exp(-e)))
+                    / (2.0 * e);
                 let scale = tube.specular(&view, xm, alpha);
                 assert!(
-                    (s - s_ref).abs() <= 1e-5 * scale,
-                    "S at {tube_x}, α {alpha}: {s} vs {s_ref} (peak {scale})"
+                    (slope - central).abs() <= 1e-4 * scale,
+                    "dS/dlnα at {tube_x}, α {alpha}: {slope} vs {central} (peak {scale})"
                 );
             }
+        }
+    }
+
+    #[test]
+    fn the_branchless_exponential_matches_the_library_one() {
+        let mut worst: f64 = 0.0;
+        for k in 0..=700_000 {
+            let t = k as f64 * 1e-3;
+            let (got, want) = (exp_neg(t), (-t).exp());
+            worst = worst.max((got / want - 1.0).abs());
+        }
+        assert!(worst < 1e-8, "worst relative error {worst}");
+        assert_eq!(exp_neg(0.0), 1.0);
+        for t in [708.0, 750.0, 1e6, f64::INFINITY] {
+            let e = exp_neg(t);
+            assert!(e.is_finite() && (0.0..1e-300).contains(&e), "{t}: {e}");
         }
     }
 
