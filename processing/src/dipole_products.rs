@@ -26,6 +26,7 @@ use stagehand_dataset::products::{NewProduct, ProductStore};
 
 use crate::calibrate_geometry::CameraGeometry;
 use crate::dipole::{DipoleMedium, fresnel_transmittance, hemispherical_transmittance};
+use crate::dipole_entrance::{Directions, EntranceDirection, line_amplitude};
 use crate::dipole_exit::{ExitView, exit_maps, sees_steeply};
 use crate::dipole_fit::{DipoleFit, blurred_profile};
 use crate::dipole_profile::{
@@ -57,6 +58,8 @@ pub struct DipoleSetup<'a> {
     pub geometry: (&'a BTreeMap<String, CameraGeometry>, &'a str),
     /// The turntable's axis id, if the rig has one.
     pub turntable_axis: Option<&'a str>,
+    /// The light arc's axis id, if the rig has one (the oblique lines' azimuth).
+    pub light_arc_axis: Option<&'a str>,
     /// The reference sample.
     pub reference: DipoleReference<'a>,
     /// How the profile is read.
@@ -65,6 +68,8 @@ pub struct DipoleSetup<'a> {
     pub cameras: Option<&'a [String]>,
     /// Also the exit function of each view ([`crate::dipole_exit`]).
     pub exit: bool,
+    /// Also the entrance function from step 1's oblique lines ([`crate::dipole_entrance`]).
+    pub entrance: bool,
 }
 
 /// The laser on the reference, as one camera saw it.
@@ -131,6 +136,19 @@ pub struct DipoleProduct {
     pub left_out: Vec<LeftOut>,
 }
 
+/// One colour's entrance function (`entrance/<nm>nm.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EntranceProduct {
+    /// The laser's wavelength, nm.
+    pub colour_nm: u32,
+    /// The sample's fixture.
+    pub fixture: String,
+    /// Every direction of incidence step 1 lit the sample from.
+    pub directions: Vec<EntranceDirection>,
+    /// Frames left out.
+    pub left_out: Vec<LeftOut>,
+}
+
 /// What a dipole pass did.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 pub struct DipoleSummary {
@@ -140,6 +158,8 @@ pub struct DipoleSummary {
     pub skipped: usize,
     /// Exit-function maps written now (one per camera and view).
     pub exit_written: usize,
+    /// Entrance functions written now (one per colour).
+    pub entrance_written: usize,
     /// The fits written and their re-render, by colour.
     pub fits: Vec<(u32, DipoleFit, Rerender)>,
 }
@@ -216,6 +236,14 @@ pub fn dipole_products(
     let reader = open_run(&run_dir)?;
     let keep = |camera: &str| setup.cameras.is_none_or(|c| c.iter().any(|x| x == camera));
     let keys = bracket_keys(&reader, |m| overhead(m, &options) && keep(&m.camera))?;
+    // Step 1's lines: the laser on, mounted anywhere but overhead.
+    let oblique_keys = if setup.entrance {
+        bracket_keys(&reader, |m| {
+            m.laser_on && m.laser_mount_deg.is_some() && !overhead(m, &options) && keep(&m.camera)
+        })?
+    } else {
+        Vec::new()
+    };
     let mut by_colour: BTreeMap<u32, (Vec<&BracketKey>, Vec<&BracketKey>)> = BTreeMap::new();
     for k in &keys {
         let e = by_colour.entry(k.meta.laser_colour_nm).or_default();
@@ -329,7 +357,41 @@ pub fn dipole_products(
                 "dipole": new.parameters,
             }),
         };
+        let oblique: Vec<&BracketKey> = oblique_keys
+            .iter()
+            .filter(|k| k.meta.laser_colour_nm == nm && k.meta.fixture == fixture)
+            .collect();
+        let entrance_new = NewProduct {
+            kind: "entrance".into(),
+            key: format!("entrance/{nm}"),
+            file_name: format!("{nm}nm.json"),
+            inputs: new
+                .inputs
+                .iter()
+                .cloned()
+                .chain(
+                    oblique
+                        .iter()
+                        .flat_map(|k| k.frames.iter().map(|f| f.path.clone())),
+                )
+                .collect(),
+            calibrations: new.calibrations.clone(),
+            software: software.to_string(),
+            parameters: json!({"colour_nm": nm, "dipole": new.parameters}),
+        };
+        if setup.entrance && oblique.is_empty() {
+            return Err(ProcessingError::MissingInput {
+                run: run_dir.display().to_string(),
+                what: format!("oblique {nm} nm laser lines on `{fixture}` (step 1)"),
+                hint: "record step 1 of sequences/quasi_homogeneous.rhai (--set step1=true), or leave `entrance` out of --products",
+            });
+        }
         let mut all_current = store.is_current(&new).map_err(dataset_err(&run_dir))?;
+        if setup.entrance {
+            all_current &= store
+                .is_current(&entrance_new)
+                .map_err(dataset_err(&run_dir))?;
+        }
         for (k, v) in &views {
             all_current &= store
                 .is_current(&exit_new(k, v))
@@ -474,9 +536,9 @@ pub fn dipole_products(
         let product = DipoleProduct {
             colour_nm: nm,
             channel,
-            fixture,
+            fixture: fixture.clone(),
             reference: (setup.reference.fixture.to_string(), albedo),
-            reference_lines,
+            reference_lines: reference_lines.clone(),
             eta: options.eta,
             line_width_mm,
             core_mm,
@@ -487,15 +549,90 @@ pub fn dipole_products(
             frames_used,
             left_out,
         };
-        let bytes = serde_json::to_vec_pretty(&product).map_err(|e| ProcessingError::Dataset {
-            run: run_dir.display().to_string(),
-            message: format!("dipole product of {nm} nm: {e}"),
-        })?;
         let medium = DipoleMedium {
             alpha_p: fit.alpha_p,
             sigma_t_p: fit.sigma_t_p,
             eta: options.eta,
         };
+        if setup.entrance {
+            let mut directions = Directions::default();
+            let mut left_out = Vec::new();
+            for key in &oblique {
+                let mount = key.meta.laser_mount_deg.unwrap_or(options.mount_deg);
+                let cos_in = (90.0 - mount).to_radians().cos();
+                let amplitude = match (reference_lines.get(&key.camera), cos_in > 0.05) {
+                    (None, _) => Err("its camera has no reference line".to_string()),
+                    (_, false) => Err(format!("the laser at {mount}° grazes the sample")),
+                    (Some(reference), true) => line_of(key, &mut planes)?.and_then(|line| {
+                        // The same units as step 2's profile (normal incidence's Fresnel
+                        // factor in): the amplitude is f(ω_i) itself. The sheet's width
+                        // on the sample grows as 1/cos θi.
+                        let values: Vec<(f64, f64)> = line
+                            .pixels
+                            .iter()
+                            .filter(|p| {
+                                p.s.abs() <= options.window_mm
+                                    && p.across_mm <= options.max_footprint_mm
+                                    && !(p.clipped || p.black)
+                            })
+                            .map(|p| {
+                                let t_out = fresnel_transmittance(p.cos_out, options.eta);
+                                let v = std::f64::consts::PI * c_eta * p.radiance
+                                    / (t_in * t_out * reference.phi);
+                                (p.s, v)
+                            })
+                            .collect();
+                        line_amplitude(&values, &medium, line_width_mm / cos_in, core_mm)
+                    }),
+                };
+                match amplitude {
+                    Ok(a) => {
+                        let angle = |axis: &str| key.meta.axes_deg.get(axis).copied();
+                        let azimuth = setup.light_arc_axis.and_then(angle).unwrap_or(0.0)
+                            - setup.turntable_axis.and_then(angle).unwrap_or(0.0);
+                        directions.add(mount, azimuth, &key.camera, a);
+                    }
+                    Err(why) => left_out.push(LeftOut {
+                        frame: key.frames[0].path.clone(),
+                        why,
+                    }),
+                }
+            }
+            let directions = directions.finish();
+            if directions.is_empty() {
+                return Err(ProcessingError::IllPosed {
+                    what: "entrance function",
+                    why: format!(
+                        "no oblique {nm} nm line on `{fixture}` could be read: {}",
+                        left_out
+                            .iter()
+                            .take(3)
+                            .map(|l| format!("{}: {}", l.frame, l.why))
+                            .collect::<Vec<_>>()
+                            .join("; ")
+                    ),
+                });
+            }
+            let entrance = EntranceProduct {
+                colour_nm: nm,
+                fixture: fixture.clone(),
+                directions,
+                left_out,
+            };
+            let bytes =
+                serde_json::to_vec_pretty(&entrance).map_err(|e| ProcessingError::Dataset {
+                    run: run_dir.display().to_string(),
+                    message: format!("entrance product of {nm} nm: {e}"),
+                })?;
+            store
+                .write(entrance_new, &bytes)
+                .map_err(dataset_err(&run_dir))?;
+            summary.entrance_written += 1;
+        }
+        let bytes = serde_json::to_vec_pretty(&product).map_err(|e| ProcessingError::Dataset {
+            run: run_dir.display().to_string(),
+            message: format!("dipole product of {nm} nm: {e}"),
+        })?;
         for (k, view) in &views {
             let maps = exit_maps(view, &medium, line_width_mm, core_mm);
             let made = exit_new(k, view);

@@ -41,6 +41,7 @@
 //! | [`btf_layout`] | which capture fills each BTF cell, views and lights in sample-frame angles |
 //! | [`dipole`] | the dipole's R_d, its total reflectance and its line-source profile |
 //! | [`dipole_profile`] | a laser line's falloff on the sample plane from frames, binned and fitted |
+//! | [`dipole_entrance`] | the entrance function: oblique lines' amplitude against the normal-incidence dipole |
 //! | [`dipole_exit`] | a view's exit function: the light sent over the fitted medium's |
 //! | [`dipole_products`] | `process --products dipole`: α′ and σ′t per laser colour from the lines at normal incidence |
 //! | [`dipole_fit`] | α′ and σ′t from a laser line's lateral falloff |
@@ -65,6 +66,7 @@ pub mod colour_calibration;
 pub mod corner_subpix;
 pub mod depth_products;
 pub mod dipole;
+pub mod dipole_entrance;
 pub mod dipole_exit;
 pub mod dipole_fit;
 pub mod dipole_products;

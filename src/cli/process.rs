@@ -88,6 +88,10 @@ pub enum Product {
     /// (`exit`: the light each point sent over what the fitted homogeneous medium sends,
     /// `weight`: how well the lines lit it; 0 where they did not), in the camera's pixels.
     Exit,
+    /// With the dipole fit, the mesostructure's entrance function per laser colour from step
+    /// 1's oblique lines (`products/entrance/<nm>nm.json`: per direction of incidence, the
+    /// light entering relative to normal incidence, per camera and averaged).
+    Entrance,
 }
 
 /// `--depth-method`.
@@ -408,7 +412,7 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
     } else {
         None
     };
-    let dipole = if want(Product::Dipole) || want(Product::Exit) {
+    let dipole = if want(Product::Dipole) || want(Product::Exit) || want(Product::Entrance) {
         Some(dipole_fits(
             &args,
             &found,
@@ -546,10 +550,12 @@ fn dipole_fits(
         )));
     }
     let (geometry, geometry_id) = cameras_geometry(args, found, rig, root)?;
+    let light_arc = rig.axis_with_role(AxisRole::LightArc).map(|a| a.id.clone());
     let setup = DipoleSetup {
         response: (responses, response_id),
         geometry: (&geometry, &geometry_id),
         turntable_axis: turntable,
+        light_arc_axis: light_arc.as_deref(),
         reference: DipoleReference {
             fixture: &args.reference_fixture,
             albedo,
@@ -560,6 +566,7 @@ fn dipole_fits(
         },
         cameras: (!args.cameras.is_empty()).then_some(args.cameras.as_slice()),
         exit: args.products.contains(&Product::Exit),
+        entrance: args.products.contains(&Product::Entrance),
     };
     let made = with_progress("colours", |progress| {
         dipole_products(store, setup, software, progress)
@@ -697,8 +704,8 @@ fn print_report(report: &Report, args: &ProcessArgs) {
     }
     if let Some(d) = &report.dipole {
         println!(
-            "dipole: {} colours written, {} already current; {} exit maps written",
-            d.written, d.skipped, d.exit_written
+            "dipole: {} colours written, {} already current; {} exit maps and {} entrance functions written",
+            d.written, d.skipped, d.exit_written, d.entrance_written
         );
         for (nm, f, r) in &d.fits {
             let flags: Vec<String> = f.flags.iter().map(|f| format!("{f:?}")).collect();

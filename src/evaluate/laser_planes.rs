@@ -71,6 +71,24 @@ fn true_sheet(
     Plane::through(o, n)
 }
 
+/// The run's rig file and the rig as the simulator built it (drawn from the truth's spec).
+pub(super) fn rig_as_built(
+    run_dir: &Path,
+    truth: &serde_json::Value,
+) -> Result<(stagehand_devices::rig::RigSpec, AsBuilt), EvaluateError> {
+    let rig_path = run_dir.join(stagehand_dataset::layout::RIG);
+    let bad = |message: String| EvaluateError::Truth {
+        path: rig_path.display().to_string(),
+        message,
+    };
+    let text = std::fs::read_to_string(&rig_path).map_err(|e| bad(e.to_string()))?;
+    let rig = parse_rig(&text, &rig_path.display().to_string()).map_err(|e| bad(e.to_string()))?;
+    let spec: AsBuiltSpec = serde_json::from_value(truth["spec"].clone())
+        .map_err(|e| bad(format!("as_built.json spec: {e}")))?;
+    let as_built = AsBuilt::draw(&rig, spec);
+    Ok((rig, as_built))
+}
+
 /// Angle (degrees) and offset at the origin (mm) of `calibrated` from `truth`.
 fn errors(calibrated: &Plane, truth: &Plane) -> (f64, f64) {
     let calibrated = oriented_like(*calibrated, truth);
@@ -93,19 +111,7 @@ pub fn evaluate_laser_planes(
     let result: LaserPlanesResult = stored
         .result(CalibrationKind::LaserPlanes)
         .map_err(|e| bad(e.to_string()))?;
-    let rig_path = run_dir.join(stagehand_dataset::layout::RIG);
-    let text = std::fs::read_to_string(&rig_path).map_err(|e| EvaluateError::Truth {
-        path: rig_path.display().to_string(),
-        message: e.to_string(),
-    })?;
-    let rig =
-        parse_rig(&text, &rig_path.display().to_string()).map_err(|e| EvaluateError::Truth {
-            path: rig_path.display().to_string(),
-            message: e.to_string(),
-        })?;
-    let spec: AsBuiltSpec = serde_json::from_value(truth["spec"].clone())
-        .map_err(|e| bad(format!("as_built.json spec: {e}")))?;
-    let as_built = AsBuilt::draw(&rig, spec);
+    let (rig, as_built) = rig_as_built(run_dir, truth)?;
     let no_truth = || bad("the run's rig has no laser to compare with".into());
     let (mut angles, mut max_offset) = (Vec::new(), 0.0f64);
     let (mut sweep_angle, mut sweep_offset, mut nominal_angle) = (0.0f64, 0.0f64, 0.0f64);

@@ -6,6 +6,7 @@
 mod colour;
 mod depth;
 mod dipole;
+mod entrance;
 mod geometry;
 mod hdr;
 mod laser_planes;
@@ -22,6 +23,7 @@ use stagehand_processing::calibration_store::{self, CalibrationKind, calibration
 pub use colour::{ColourFigures, LampFigures, evaluate_colour};
 pub use depth::{DepthFigures, evaluate_depth};
 pub use dipole::{DipoleColourFigures, DipoleFigures, evaluate_dipole};
+pub use entrance::{EntranceDirectionFigures, EntranceFigures, evaluate_entrance};
 pub use geometry::{CameraFigures, GeometryFigures, evaluate_geometry, truth_geometry};
 pub use hdr::{ErrorFigures, HdrFigures, evaluate_hdr};
 pub use laser_planes::{LaserPlaneFigures, evaluate_laser_planes};
@@ -79,6 +81,8 @@ pub struct Report {
     pub dipole: Option<DipoleFigures>,
     /// The mesostructure's exit-function maps against the material plane.
     pub exit: Option<ExitFigures>,
+    /// The entrance functions against the simulator's Fresnel transmittance.
+    pub entrance: Option<EntranceFigures>,
 }
 
 /// The run's reader and its products of `kind`; `None` when it has none.
@@ -141,6 +145,7 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
         transparency: None,
         dipole: None,
         exit: None,
+        entrance: None,
     };
     for stored in calibration_store::list(&root)?.into_iter().flatten() {
         if !stored.calibration.inputs.iter().any(|i| i.run_id == run_id)
@@ -173,5 +178,6 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
     report.transparency = evaluate_transparency(run_dir)?;
     report.dipole = evaluate_dipole(run_dir)?;
     report.exit = evaluate_exit(run_dir)?;
+    report.entrance = evaluate_entrance(run_dir)?;
     Ok(report)
 }
