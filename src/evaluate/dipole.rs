@@ -69,17 +69,7 @@ pub fn evaluate_dipole(run_dir: &Path) -> Result<Option<DipoleFigures>, Evaluate
     let Some((_, products)) = super::products_of(run_dir, "dipole")? else {
         return Ok(None);
     };
-    let sample = super::surface::simulated_sample(run_dir)?;
-    let centre = sample.material_at(0.0, 0.0);
-    let medium = (centre.medium as usize)
-        .checked_sub(1)
-        .and_then(|k| sample.media.get(k))
-        .ok_or_else(|| {
-            err(format!(
-                "the sample `{}` has no subsurface medium at its centre: there is no dipole to compare with",
-                sample.name
-            ))
-        })?;
+    let (sample, centre, medium) = super::surface::centre_medium(run_dir, "dipole")?;
     let mut colours = Vec::new();
     for p in &products {
         let bytes =

@@ -61,17 +61,7 @@ pub fn evaluate_entrance(run_dir: &Path) -> Result<Option<EntranceFigures>, Eval
     let Some((_, products)) = super::products_of(run_dir, "entrance")? else {
         return Ok(None);
     };
-    let sample = super::surface::simulated_sample(run_dir)?;
-    let centre = sample.material_at(0.0, 0.0);
-    let medium = (centre.medium as usize)
-        .checked_sub(1)
-        .and_then(|k| sample.media.get(k))
-        .ok_or_else(|| {
-            err(format!(
-                "the sample `{}` has no subsurface medium at its centre: no light enters it to compare with",
-                sample.name
-            ))
-        })?;
+    let (sample, centre, medium) = super::surface::centre_medium(run_dir, "entrance function")?;
     let eta = f64::from(medium.eta);
     let truth = super::read_truth(run_dir)?;
     let (rig, as_built) = super::laser_planes::rig_as_built(run_dir, &truth)?;

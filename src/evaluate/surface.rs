@@ -8,6 +8,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 use stagehand_dataset::exr_planes::decode_exr_planes;
 use stagehand_processing::rectify::RectifyGrid;
+use stagehand_simulator::render::material::{Material, Medium};
 use stagehand_simulator::render::sample::Sample;
 
 use super::EvaluateError;
@@ -29,6 +30,29 @@ pub struct SurfaceFigures {
     pub inpainted_rmse_mm: f64,
     /// Median angle between measured and true normals, degrees.
     pub normal_median_deg: f64,
+}
+
+/// The simulated run's sample, its material at the centre and the subsurface medium there
+/// (what the dipole's processing compares with); an error, saying there is nothing to
+/// compare `what` with, for a sample without one.
+pub(super) fn centre_medium(
+    run_dir: &Path,
+    what: &str,
+) -> Result<(Sample, Material, Medium), EvaluateError> {
+    let sample = simulated_sample(run_dir)?;
+    let centre = sample.material_at(0.0, 0.0);
+    let medium = (centre.medium as usize)
+        .checked_sub(1)
+        .and_then(|k| sample.media.get(k))
+        .copied()
+        .ok_or_else(|| EvaluateError::Truth {
+            path: run_dir.display().to_string(),
+            message: format!(
+                "the sample `{}` has no subsurface medium at its centre: there is no {what} to compare with",
+                sample.name
+            ),
+        })?;
+    Ok((sample, centre, medium))
 }
 
 /// The simulated run's sample as the simulator built it (its relief at the run's step).
