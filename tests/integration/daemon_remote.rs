@@ -47,7 +47,9 @@ fn rig_with_a_real_port(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_second_opener_of_the_daemons_ports_is_told_to_use_remote() -> TestResult {
-    let _turn = crate::grbl_peer::alongside();
+    // Alone: the daemon's URL in the port locks is the process's, and a daemon of another
+    // test beside this one would record its own.
+    let _turn = crate::grbl_peer::exclusive();
     let tmp = tempfile::tempdir()?;
     let (rig, port) = rig_with_a_real_port(tmp.path())?;
     let d = start(tmp.path(), &rig).await?;
