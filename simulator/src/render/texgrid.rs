@@ -77,6 +77,46 @@ impl TexGrid {
         let bottom = self.get(i, j1).lerp(self.get(i1, j1), a);
         top.lerp(bottom, b)
     }
+
+    /// Interpolation between texel centres at (x, y) mm in the logarithm, per channel, where
+    /// the four texels around are all positive (bilinear otherwise), clamped at the border;
+    /// zero for NaN coordinates. A falloff such as light spreading away from where it entered
+    /// is convex: the bilinear chord overestimates it between texels (by h²·f″/8 at the
+    /// midpoint, 1 % for a decay of 1.3/mm on 0.23 mm texels), while an exponential is exact
+    /// in the logarithm.
+    #[inline]
+    pub fn at_geometric(&self, x: f32, y: f32) -> Vec3A {
+        if x.is_nan() || y.is_nan() {
+            return Vec3A::ZERO;
+        }
+        let last = (self.n - 1) as f32;
+        let u = ((x - self.origin) / self.cell - 0.5).clamp(0.0, last);
+        let v = ((y - self.origin) / self.cell - 0.5).clamp(0.0, last);
+        let (i, j) = (u as usize, v as usize);
+        let (a, b) = (u - i as f32, v - j as f32);
+        let (i1, j1) = ((i + 1).min(self.n - 1), (j + 1).min(self.n - 1));
+        let corners = [
+            self.get(i, j),
+            self.get(i1, j),
+            self.get(i, j1),
+            self.get(i1, j1),
+        ];
+        let weights = [(1.0 - a) * (1.0 - b), a * (1.0 - b), (1.0 - a) * b, a * b];
+        let channel = |c: usize| {
+            let values = corners.map(|q| q[c]);
+            if values.iter().all(|q| *q > 0.0) {
+                values
+                    .iter()
+                    .zip(weights)
+                    .map(|(q, w)| w * q.ln())
+                    .sum::<f32>()
+                    .exp()
+            } else {
+                values.iter().zip(weights).map(|(q, w)| w * q).sum::<f32>()
+            }
+        };
+        Vec3A::new(channel(0), channel(1), channel(2))
+    }
 }
 
 #[cfg(test)]
@@ -101,5 +141,33 @@ mod tests {
         assert_eq!(g.at(f32::NAN, 0.0), Vec3A::ZERO);
         assert_eq!(g.n(), 8);
         assert!((g.cell() - 2.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn geometric_lookup_follows_an_exponential_and_falls_back_at_zeros() {
+        let mut g = TexGrid::new(16, 16.0);
+        for j in 0..16 {
+            for i in 0..16 {
+                let (x, _) = g.centre(i, j);
+                let zero = if i == 12 { 0.0 } else { 1.0 };
+                g.values_mut()[j * 16 + i] = Vec3A::new((-1.3 * x).exp(), 2.0, zero);
+            }
+        }
+        for x in [-3.3f32, -0.25, 0.5, 2.71] {
+            let got = g.at_geometric(x, 0.4);
+            let want = (-1.3 * x).exp();
+            assert!(
+                (got.x / want - 1.0).abs() < 1e-5,
+                "{x}: {} vs {want}",
+                got.x
+            );
+            assert!((got.y - 2.0).abs() < 1e-6);
+            // The bilinear chord is above the curve there.
+            assert!(g.at(x, 0.4).x >= got.x);
+        }
+        // Beside a zero texel: bilinear.
+        let (x12, _) = g.centre(12, 0);
+        assert!((g.at_geometric(x12 - 0.5, 0.0).z - 0.5).abs() < 1e-6);
+        assert_eq!(g.at_geometric(f32::NAN, 0.0), Vec3A::ZERO);
     }
 }
