@@ -60,12 +60,13 @@ impl TexGrid {
         self.values[j * self.n + i]
     }
 
-    /// Bilinear interpolation between texel centres at (x, y) mm, clamped at the border;
-    /// zero for NaN coordinates.
+    /// The four texels around (x, y) mm, clamped at the border (lower-left, lower-right,
+    /// upper-left, upper-right), and the point's fractions (a, b) across them; `None` for NaN
+    /// coordinates.
     #[inline]
-    pub fn at(&self, x: f32, y: f32) -> Vec3A {
+    fn around(&self, x: f32, y: f32) -> Option<([Vec3A; 4], f32, f32)> {
         if x.is_nan() || y.is_nan() {
-            return Vec3A::ZERO;
+            return None;
         }
         let last = (self.n - 1) as f32;
         let u = ((x - self.origin) / self.cell - 0.5).clamp(0.0, last);
@@ -73,9 +74,26 @@ impl TexGrid {
         let (i, j) = (u as usize, v as usize);
         let (a, b) = (u - i as f32, v - j as f32);
         let (i1, j1) = ((i + 1).min(self.n - 1), (j + 1).min(self.n - 1));
-        let top = self.get(i, j).lerp(self.get(i1, j), a);
-        let bottom = self.get(i, j1).lerp(self.get(i1, j1), a);
-        top.lerp(bottom, b)
+        Some((
+            [
+                self.get(i, j),
+                self.get(i1, j),
+                self.get(i, j1),
+                self.get(i1, j1),
+            ],
+            a,
+            b,
+        ))
+    }
+
+    /// Bilinear interpolation between texel centres at (x, y) mm, clamped at the border;
+    /// zero for NaN coordinates.
+    #[inline]
+    pub fn at(&self, x: f32, y: f32) -> Vec3A {
+        let Some(([q00, q10, q01, q11], a, b)) = self.around(x, y) else {
+            return Vec3A::ZERO;
+        };
+        q00.lerp(q10, a).lerp(q01.lerp(q11, a), b)
     }
 
     /// Interpolation between texel centres at (x, y) mm in the logarithm, per channel, where
@@ -86,21 +104,9 @@ impl TexGrid {
     /// in the logarithm.
     #[inline]
     pub fn at_geometric(&self, x: f32, y: f32) -> Vec3A {
-        if x.is_nan() || y.is_nan() {
+        let Some((corners, a, b)) = self.around(x, y) else {
             return Vec3A::ZERO;
-        }
-        let last = (self.n - 1) as f32;
-        let u = ((x - self.origin) / self.cell - 0.5).clamp(0.0, last);
-        let v = ((y - self.origin) / self.cell - 0.5).clamp(0.0, last);
-        let (i, j) = (u as usize, v as usize);
-        let (a, b) = (u - i as f32, v - j as f32);
-        let (i1, j1) = ((i + 1).min(self.n - 1), (j + 1).min(self.n - 1));
-        let corners = [
-            self.get(i, j),
-            self.get(i1, j),
-            self.get(i, j1),
-            self.get(i1, j1),
-        ];
+        };
         let weights = [(1.0 - a) * (1.0 - b), a * (1.0 - b), (1.0 - a) * b, a * b];
         let channel = |c: usize| {
             let values = corners.map(|q| q[c]);
