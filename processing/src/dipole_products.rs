@@ -30,7 +30,7 @@ use crate::dipole_entrance::{Directions, EntranceDirection, line_amplitude};
 use crate::dipole_exit::{ExitView, exit_maps, sees_steeply};
 use crate::dipole_fit::{DipoleFit, blurred_profile};
 use crate::dipole_profile::{
-    Bins, LineFrame, PlanePixel, fit_bins, line_frame, plane_pixels, reference_line,
+    Bins, LineFrame, LinePixel, PlanePixel, fit_bins, line_frame, plane_pixels, reference_line,
 };
 pub use crate::dipole_profile::{DipoleOptions, ProfileBin};
 use crate::error::ProcessingError;
@@ -471,6 +471,14 @@ pub fn dipole_products(
         // The sample's lines, pooled and per camera.
         let c_eta = hemispherical_transmittance(options.eta);
         let t_in = fresnel_transmittance(1.0, options.eta);
+        // A pixel's radiance in the profile's units, π·c(η)·L / (F_t(η, 1)·F_t(η, cosθo)·φ);
+        // `None` beyond the window or for a pixel too wide across the line.
+        let profile_value = |p: &LinePixel, phi: f64| {
+            (p.s.abs() <= options.window_mm && p.across_mm <= options.max_footprint_mm).then(|| {
+                let t_out = fresnel_transmittance(p.cos_out, options.eta);
+                std::f64::consts::PI * c_eta * p.radiance / (t_in * t_out * phi)
+            })
+        };
         let mut pooled = Bins::default();
         let mut per_camera: BTreeMap<String, Bins> = BTreeMap::new();
         let mut frames_used = 0;
@@ -502,11 +510,9 @@ pub fn dipole_products(
             };
             let bins = per_camera.entry(key.camera.clone()).or_default();
             for p in &line.pixels {
-                if p.s.abs() > options.window_mm || p.across_mm > options.max_footprint_mm {
+                let Some(v) = profile_value(p, reference.phi) else {
                     continue;
-                }
-                let t_out = fresnel_transmittance(p.cos_out, options.eta);
-                let v = std::f64::consts::PI * c_eta * p.radiance / (t_in * t_out * reference.phi);
+                };
                 pooled.add(options.bin_mm, p.s, v, p);
                 bins.add(options.bin_mm, p.s, v, p);
                 if !(p.clipped || p.black) {
@@ -560,27 +566,17 @@ pub fn dipole_products(
             for key in &oblique {
                 let mount = key.meta.laser_mount_deg.unwrap_or(options.mount_deg);
                 let cos_in = (90.0 - mount).to_radians().cos();
-                let amplitude = match (reference_lines.get(&key.camera), cos_in > 0.05) {
-                    (None, _) => Err("its camera has no reference line".to_string()),
-                    (_, false) => Err(format!("the laser at {mount}° grazes the sample")),
-                    (Some(reference), true) => line_of(key, &mut planes)?.and_then(|line| {
-                        // The same units as step 2's profile (normal incidence's Fresnel
-                        // factor in): the amplitude is f(ω_i) itself. The sheet's width
-                        // on the sample grows as 1/cos θi.
+                let amplitude = match reference_lines.get(&key.camera) {
+                    _ if cos_in <= 0.05 => Err(format!("the laser at {mount}° grazes the sample")),
+                    None => Err("its camera has no reference line".to_string()),
+                    // In step 2's units (normal incidence's Fresnel factor in), the amplitude
+                    // is f(ω_i) itself. The sheet's width on the sample grows as 1/cos θi.
+                    Some(reference) => line_of(key, &mut planes)?.and_then(|line| {
                         let values: Vec<(f64, f64)> = line
                             .pixels
                             .iter()
-                            .filter(|p| {
-                                p.s.abs() <= options.window_mm
-                                    && p.across_mm <= options.max_footprint_mm
-                                    && !(p.clipped || p.black)
-                            })
-                            .map(|p| {
-                                let t_out = fresnel_transmittance(p.cos_out, options.eta);
-                                let v = std::f64::consts::PI * c_eta * p.radiance
-                                    / (t_in * t_out * reference.phi);
-                                (p.s, v)
-                            })
+                            .filter(|p| !(p.clipped || p.black))
+                            .filter_map(|p| Some((p.s, profile_value(p, reference.phi)?)))
                             .collect();
                         line_amplitude(&values, &medium, line_width_mm / cos_in, core_mm)
                     }),

@@ -59,8 +59,8 @@ pub struct Tube {
 pub enum Quadrature {
     /// Within 10⁻⁵ of the sweep's peak: what the fit's answer rests on.
     Fine,
-    /// One 8-node panel over the lobe: within a few % where the lobe is narrow, enough to
-    /// find the basin of α, at a fraction of the cost.
+    /// One 8-node panel over the lobe: rougher, used only to find the basin of α, at a
+    /// fraction of the cost.
     Coarse,
 }
 
@@ -160,11 +160,7 @@ impl Tube {
         if a.is_nan() || a <= 1e-9 * (vx.abs() + h) {
             return (view.mirror_point(self.height_mm).1, None);
         }
-        let tan2 = |u: f64| {
-            let r = (c + u * u).sqrt();
-            let (hx, hy, hz) = (vx + wo.x * r, u + wo.y * r, h + wo.z * r);
-            (hx * hx + hy * hy) / (hz * hz)
-        };
+        let tan2 = |u: f64| tan2_along(view, h, vx, u);
         let mut u = my * c / a;
         let step = 1e-3 * c.sqrt();
         let mut curvature = None;
@@ -204,25 +200,21 @@ impl Tube {
         let half = 0.5 * self.length_mm;
         let (centre, curvature) = self.lobe_centre(view, tube_x);
         let centre = centre.clamp(-half, half);
-        let closest = Vector3::new(tube_x, centre, self.height_mm) - view.p;
-        let unseen = Lobe {
+        let h = self.height_mm - view.p.z;
+        let vx = tube_x - view.p.x;
+        let distance = (Vector3::new(tube_x, centre, self.height_mm) - view.p).norm();
+        // A tube below the point, or a camera below the sample, sees no lobe.
+        let tan2 = if h > 0.0 && view.wo.z > 0.0 {
+            tan2_along(view, h, vx, centre - view.p.y)
+        } else {
+            f64::INFINITY
+        };
+        Lobe {
             tube_x,
             centre,
             curvature,
-            distance: closest.norm(),
-            tan2: f64::INFINITY,
-        };
-        let Some(wi) = closest.try_normalize(1e-12) else {
-            return unseen;
-        };
-        let hv = wi + view.wo;
-        let hn = hv.z;
-        if hn.is_nan() || hn <= 0.0 || self.height_mm - view.p.z <= 0.0 {
-            return unseen;
-        }
-        Lobe {
-            tan2: (hv.norm_squared() - hn * hn).max(0.0) / (hn * hn),
-            ..unseen
+            distance,
+            tan2: if tan2.is_nan() { f64::INFINITY } else { tan2 },
         }
     }
 
@@ -303,6 +295,16 @@ impl Tube {
             (0.0, 0.0)
         }
     }
+}
+
+/// tan²δ of the tube's point `u` mm along it from the point's y, the tube `vx` mm off in x
+/// and `h` mm above: with v = (vx, u, h), r = |v| and wi = v/r, the half vector wi + wo scaled
+/// by r is (vx + wo.x·r, u + wo.y·r, h + wo.z·r).
+fn tan2_along(view: &ViewPoint, h: f64, vx: f64, u: f64) -> f64 {
+    let wo = view.wo;
+    let r = (vx * vx + h * h + u * u).sqrt();
+    let (hx, hy, hz) = (vx + wo.x * r, u + wo.y * r, h + wo.z * r);
+    (hx * hx + hy * hy) / (hz * hz)
 }
 
 /// What the nodes of one stop share: the tube's offset from the point in x, its height
