@@ -11,7 +11,7 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
 
-use grbl_peer::{Board, Build};
+use grbl_peer::{Board, Build, FAST};
 use stagehand_devices::axis::{AxisDriver, AxisHandle};
 use stagehand_devices::clock::RigClock;
 use stagehand_devices::grbl::codec::Command;
@@ -22,11 +22,6 @@ use stagehand_devices::{DeviceError, DeviceErrorKind};
 use stagehand_simulator::World;
 use stagehand_simulator::emulators::grbl::GrblBuild;
 use stagehand_simulator::emulators::{Faults, GrblEmulator};
-
-/// The boards here accelerate at 600 units/s² (`$120`–`$122`) instead of the peer's usual 60:
-/// the scenario is about the protocol, and the homing cycles and moves then take a fraction of
-/// the wall time. [`rig_axes`] says the same to the driver.
-const FAST: &str = "$120=600 $121=600 $122=600";
 
 /// The light stage's three axes placed in GRBL's negative machine space: the turntable and
 /// the arc (0…300°) run toward −machine from home at 0°, the tilt (−30…30°) homes at +30°.
@@ -41,7 +36,7 @@ fn rig_axes() -> Vec<AxisSpec> {
                 controller_axis: Some(l.into()),
                 steps_per_deg: 142.222,
                 speed_deg_s: 30.0,
-                accel_deg_s2: 600.0,
+                accel_deg_s2: 600.0, // the boards' FAST
                 homing_speed_deg_s: 40.0,
                 min_deg: if tilt { -30.0 } else { 0.0 },
                 max_deg: if tilt { 30.0 } else { 300.0 },

@@ -17,6 +17,10 @@ pub const SETTINGS: &str = "$22=1 $20=1 $32=0 $23=0 $27=1 $24=600 $25=2400 \
     $100=142.222 $101=142.222 $102=142.222 $110=1800 $111=1800 $112=1800 \
     $120=60 $121=60 $122=60 $130=400 $131=400 $132=100";
 
+/// Accelerations of 600 units/s² (`$120`–`$122`) instead of [`SETTINGS`]' 60: for tests about
+/// the protocol, whose homing cycles and moves then take a fraction of the wall time.
+pub const FAST: &str = "$120=600 $121=600 $122=600";
+
 /// Where each axis's homing switch sits, in units of travel from the power-on position.
 pub const SWITCH_AT: f64 = 5.0;
 
@@ -181,11 +185,39 @@ impl Board {
             dir,
             child: None,
         };
-        // First power-on writes the settings to the EEPROM; the second boots with them.
-        board.power_on(&format!("{SETTINGS} {extra}"));
-        board.power_off();
+        // A board configured with these settings once before: its EEPROM, copied, boots with
+        // them as a configured board does.
+        let eeprom = board.configured_eeprom(extra);
+        std::fs::copy(&eeprom, board.dir.path().join("EEPROM.DAT")).expect("copy the EEPROM");
         board.power_on("");
         Some(board)
+    }
+
+    /// The EEPROM of a board of this build after [`SETTINGS`] and `extra` were sent to it,
+    /// made once (a power-on that writes them; `serve.py` takes a second to boot the firmware)
+    /// and kept beside the firmware, named by the build and the settings.
+    fn configured_eeprom(&mut self, extra: &str) -> PathBuf {
+        use std::hash::{Hash, Hasher};
+        let settings = format!("{SETTINGS} {extra}");
+        let mut hasher = std::collections::hash_map::DefaultHasher::new();
+        settings.hash(&mut hasher);
+        let dir = self.firmware.with_file_name("eeprom");
+        let file = dir.join(format!(
+            "{}-{:016x}.DAT",
+            self.build.file(),
+            hasher.finish()
+        ));
+        if file.is_file() {
+            return file;
+        }
+        self.power_on(&settings);
+        self.power_off();
+        std::fs::create_dir_all(&dir).expect("the EEPROM folder");
+        // Written whole, then renamed: another test binary may read it meanwhile.
+        let partial = tempfile::NamedTempFile::new_in(&dir).expect("the EEPROM folder");
+        std::fs::copy(self.dir.path().join("EEPROM.DAT"), partial.path()).expect("keep the EEPROM");
+        partial.persist(&file).expect("keep the EEPROM");
+        file
     }
 
     fn power_on(&mut self, settings: &str) {
