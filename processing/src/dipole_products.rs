@@ -166,7 +166,7 @@ pub struct DipoleSummary {
 
 /// Compares the fitted profile with every pixel's value outside the core.
 fn rerender(
-    seen: &[(f64, f64)],
+    seen: &[(f32, f32)],
     fit: &DipoleFit,
     eta: f64,
     line_width_mm: f64,
@@ -178,7 +178,11 @@ fn rerender(
         eta,
     };
     let (mut num, mut den, mut rel) = (0.0, 0.0, Vec::new());
-    for &(s, v) in seen.iter().filter(|(s, _)| s.abs() > core_mm) {
+    for (s, v) in seen
+        .iter()
+        .map(|&(s, v)| (f64::from(s), f64::from(v)))
+        .filter(|(s, _)| s.abs() > core_mm)
+    {
         let model = blurred_profile(&medium, s, line_width_mm);
         if model > 0.0 {
             num += (v - model).powi(2);
@@ -482,8 +486,9 @@ pub fn dipole_products(
         let mut pooled = Bins::default();
         let mut per_camera: BTreeMap<String, Bins> = BTreeMap::new();
         let mut frames_used = 0;
-        // Every usable pixel's (distance, value), for the re-render.
-        let mut seen: Vec<(f64, f64)> = Vec::new();
+        // Every usable pixel's (distance, value), for the re-render: single precision, half
+        // the memory (a full-size run holds millions), far finer than the sensor's noise.
+        let mut seen: Vec<(f32, f32)> = Vec::new();
         for key in samples {
             let Some(reference) = reference_lines.get(&key.camera) else {
                 left_out.push(LeftOut {
@@ -516,9 +521,9 @@ pub fn dipole_products(
                 pooled.add(options.bin_mm, p.s, v, p);
                 bins.add(options.bin_mm, p.s, v, p);
                 if !(p.clipped || p.black) {
-                    seen.push((p.s, v));
+                    seen.push((p.s as f32, v as f32));
                     if let Some(view) = view.as_mut() {
-                        view.pixels.push((p.index, p.s, v));
+                        view.pixels.push((p.index as u32, p.s as f32, v as f32));
                     }
                 }
             }
