@@ -541,10 +541,12 @@ fn the_emulator_answers_every_exchange_as_the_real_firmware_does() {
     let mut ran = 0;
     for ex in EXCHANGES {
         // grbl-sim now and then loses motion or garbles a report under load (seen in CI: a
-        // resumed move ending Idle 5 units short, twice in a row); a difference counts only if
-        // two fresh boards show it again. An emulator's difference shows every time.
+        // resumed move ending Idle 5 units short, twice in a row; 256 steps lost on three
+        // fresh boards in a row, with a byte garbled in a report; on an idle machine about one
+        // feed-hold exchange in five loses them); a difference counts only if four fresh
+        // boards show it again. An emulator's difference shows every time.
         let mut outcome = compare(ex);
-        for _ in 0..2 {
+        for _ in 0..4 {
             let Some(Err(diff)) = &outcome else { break };
             eprintln!("retrying on a fresh board:\n{diff}");
             outcome = compare(ex);
