@@ -7,11 +7,11 @@
 //! (`calibrate geometry --from-truth`) is used so that the figures measure the dipole fit, not a
 //! geometric calibration.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 use super::common::calibration::{as_built_rig_with, exact_geometry, stagehand, stagehand_output};
-use super::common::run_sequence;
+use super::common::{run_sequence, static_dir};
 use stagehand::rig::RigSource;
 
 fn path(p: &Path) -> &str {
@@ -45,12 +45,12 @@ fn rig(scene: &str) -> RigSource {
 
 /// The folder the tests' runs share and the response calibration made there once (a sweep on
 /// the rig's cameras, whatever the sample: the colour checker is placed for it).
-fn shared() -> &'static (tempfile::TempDir, String) {
-    static SHARED: OnceLock<(tempfile::TempDir, String)> = OnceLock::new();
+fn shared() -> &'static (PathBuf, String) {
+    static SHARED: OnceLock<(PathBuf, String)> = OnceLock::new();
     SHARED.get_or_init(|| {
-        let out = tempfile::tempdir().expect("a folder");
-        let scene = felt(out.path(), "flat_felt", "");
-        let sweep = run_sequence("calibration_response.rhai", rig(&scene), &[], out.path(), 1);
+        let out = static_dir("dipole-shared");
+        let scene = felt(&out, "flat_felt", "");
+        let sweep = run_sequence("calibration_response.rhai", rig(&scene), &[], &out, 1);
         sweep.result.as_ref().expect("the response sweep runs");
         let response = stagehand(&["calibrate", "response", path(&sweep.dir), "--json"]);
         let id = response["id"].as_str().expect("an id").to_string();
@@ -62,7 +62,7 @@ fn shared() -> &'static (tempfile::TempDir, String) {
 fn the_dipole_comes_back_from_laser_lines_on_a_simulated_medium() {
     let _turn = crate::grbl_peer::alongside();
     let (out, response) = shared();
-    let out = out.path();
+    let out = out.as_path();
     let scene = felt(out, "flat_felt", "");
 
     let run = run_sequence(
@@ -190,7 +190,7 @@ fn the_dipole_comes_back_from_laser_lines_on_a_simulated_medium() {
 fn the_exit_function_comes_back_from_a_sweep_over_a_mesostructure() {
     let _turn = crate::grbl_peer::alongside();
     let (out, response) = shared();
-    let out = out.path();
+    let out = out.as_path();
     let scene = felt(
         out,
         "meso_felt",

@@ -170,22 +170,21 @@ fn faults_seen(o: &Outcome) -> Vec<(String, String)> {
 }
 
 /// The undisturbed tour through the emulators, run once per test binary.
-fn clean_tour() -> &'static (tempfile::TempDir, std::path::PathBuf) {
-    static CLEAN: std::sync::OnceLock<(tempfile::TempDir, std::path::PathBuf)> =
-        std::sync::OnceLock::new();
+fn clean_tour() -> &'static std::path::PathBuf {
+    static CLEAN: std::sync::OnceLock<std::path::PathBuf> = std::sync::OnceLock::new();
     CLEAN.get_or_init(|| {
-        let out = tempfile::tempdir().expect("out");
-        let o = run_emulated(tour(), &[], &[], out.path());
+        let out = common::static_dir("clean-tour");
+        let o = run_emulated(tour(), &[], &[], &out);
         assert_done(&o);
         assert!(faults_seen(&o).is_empty(), "{:?}", faults_seen(&o));
-        (out, o.dir)
+        o.dir
     })
 }
 
 /// Runs the tour with `fault` injected on `port`, checks it fired, paused the run with an
 /// error naming `device`, and that the dataset equals the undisturbed one byte for byte.
 fn tour_survives(port: &str, fault: Fault, devices: &[&str]) {
-    let (_keep, clean_dir) = clean_tour();
+    let clean_dir = clean_tour();
     let faults = Faults::new([fault.clone()]);
     let out = tempfile::tempdir().expect("out");
     let o = run_emulated(tour(), &[], &[(port, faults.clone())], out.path());
@@ -210,7 +209,7 @@ fn tour_survives(port: &str, fault: Fault, devices: &[&str]) {
 #[test]
 fn tour_through_emulators_matches_the_simulated_rig_byte_for_byte() {
     let _turn = crate::grbl_peer::alongside();
-    let (_keep, dir) = clean_tour();
+    let dir = clean_tour();
     assert_no_duplicates(dir);
     // The same tour on the simulated devices (virtual clock, no bytes) records the same frames:
     // the emulators move the same world, and hardware-triggered frames get the same ids.

@@ -19,6 +19,34 @@ use stagehand::session::{self, DEFAULT_RESERVE_BYTES, Prepared, SessionError, Wi
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, BUILTIN_REFLECTOMETER};
 use tokio::sync::broadcast;
 
+/// A folder for a `static` that several tests of this binary share. A static is never dropped,
+/// so a `TempDir` in one outlived every run (about 400 MB a run for the dipole tests): the
+/// folder sits under Cargo's target tmp dir, named after this process, and each process first
+/// removes the folders of processes that are gone.
+pub fn static_dir(name: &str) -> PathBuf {
+    let root = Path::new(env!("CARGO_TARGET_TMPDIR"));
+    let prefix = format!("{name}-");
+    if cfg!(target_os = "linux")
+        && let Ok(entries) = std::fs::read_dir(root)
+    {
+        for entry in entries.flatten() {
+            let file = entry.file_name();
+            let pid = file
+                .to_str()
+                .and_then(|f| f.strip_prefix(&prefix))
+                .and_then(|p| p.parse::<u32>().ok());
+            if pid.is_some_and(|pid| !Path::new(&format!("/proc/{pid}")).exists()) {
+                let _ = std::fs::remove_dir_all(entry.path());
+            }
+        }
+    }
+    let dir = root.join(format!("{prefix}{}", std::process::id()));
+    // A reused process id's leftovers.
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("a folder under the target tmp dir");
+    dir
+}
+
 /// Repository root (where `sequences/` lives).
 pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
