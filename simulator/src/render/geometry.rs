@@ -207,14 +207,30 @@ impl CameraPose {
     /// and the pinhole ray through the result returned. A pinhole lens skips the inversion.
     #[inline]
     pub fn ray(&self, x: f32, y: f32) -> Vec3A {
-        let dx = x - self.principal_x;
-        let dy = self.principal_y - y;
         if self.lens.is_identity() {
+            let dx = x - self.principal_x;
+            let dy = self.principal_y - y;
             return (self.forward * self.focal_px + self.right * dx + self.up * dy).normalize();
         }
+        self.ray_through(self.undistorted(x, y))
+    }
+
+    /// The undistorted normalised coordinates (x/z, y/z with image y down) of image point
+    /// (x, y), in the single precision rays are made from: the lens inversion, which depends
+    /// on neither the pose nor the frame (`pixel_samples` tabulates it per camera).
+    #[inline]
+    pub fn undistorted(&self, x: f32, y: f32) -> [f32; 2] {
+        let dx = x - self.principal_x;
+        let dy = self.principal_y - y;
         let f = f64::from(self.focal_px);
         let ((u, v), _) = self.lens.undistort(f64::from(dx) / f, -f64::from(dy) / f);
-        (self.forward + self.right * u as f32 - self.up * v as f32).normalize()
+        [u as f32, v as f32]
+    }
+
+    /// Unit ray direction through undistorted normalised coordinates ([`Self::undistorted`]).
+    #[inline]
+    pub fn ray_through(&self, [u, v]: [f32; 2]) -> Vec3A {
+        (self.forward + self.right * u - self.up * v).normalize()
     }
 
     /// Image position (x, y) in pixels of a sample-frame point, if it is in front: the pinhole

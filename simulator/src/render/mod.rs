@@ -11,7 +11,8 @@
 //! [`lights`], [`laser`], [`shading`] (the BRDF models), [`scene`] (intersection and direct
 //! lighting), [`irradiance`] (direct light at texels), [`subsurface`] (dipole diffusion by
 //! [`fft`] convolution), [`bounce`] (interreflection between relief texels), [`texgrid`],
-//! [`surface`] and [`pass_cache`] (per-step sharing of those passes), [`effects`] (the plan), [`sensor`], [`quality`], [`rng`] (counter-based
+//! [`surface`] and [`pass_cache`] (per-step sharing of those passes), [`pixel_samples`]
+//! (sub-pixel sampling and each camera's lens inversion, kept), [`effects`] (the plan), [`sensor`], [`quality`], [`rng`] (counter-based
 //! noise), [`ground_truth`] (depth, normals, material, noise-free radiance per pixel) and
 //! [`error`].
 //!
@@ -33,6 +34,7 @@ pub mod laser;
 pub mod lights;
 pub mod material;
 pub mod pass_cache;
+pub mod pixel_samples;
 pub mod provenance;
 pub mod quality;
 pub mod rng;
@@ -79,6 +81,8 @@ pub struct Renderer {
     samples: Mutex<HashMap<String, Arc<Sample>>>,
     visibility: shadow::VisibilityCache,
     passes: TransportCaches,
+    /// Each camera's undistorted sample points (the lens inversion), computed once.
+    lens_tables: pixel_samples::LensTables,
     /// The rig as built: nominal unless `[sim.as_built]` asks for deviations.
     as_built: AsBuilt,
 }
@@ -142,6 +146,7 @@ impl Renderer {
             samples: Mutex::new(HashMap::new()),
             visibility: shadow::VisibilityCache::default(),
             passes: TransportCaches::default(),
+            lens_tables: pixel_samples::LensTables::default(),
         })
     }
 
@@ -333,6 +338,11 @@ impl Renderer {
             knobs,
             lit,
         );
+        let lens = if lit {
+            self.lens_tables.get(&pose, knobs.spp_side, laser.is_some())
+        } else {
+            None
+        };
         let scene = Scene::new(
             &sample,
             lights,
@@ -357,7 +367,8 @@ impl Renderer {
                 let mut rays = 0u64;
                 if lit {
                     for x in 0..width {
-                        let radiance = scene.pixel(&pose, x as u32, y as u32, &mut rays);
+                        let radiance =
+                            scene.pixel_with(&pose, lens.as_deref(), x as u32, y as u32, &mut rays);
                         row[x * 3..x * 3 + 3].copy_from_slice(&radiance.to_array());
                     }
                 }

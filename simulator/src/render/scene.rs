@@ -9,6 +9,7 @@ use super::bounce::BounceMap;
 use super::geometry::CameraPose;
 use super::laser::LaserSheet;
 use super::lights::{Emitter, HALOGEN_RADIUS_MM, Light, TURNTABLE_RADIUS_MM, TubeBody};
+use super::pixel_samples::{JITTER_KEY, LensTable, sample_position};
 use super::quality::Knobs;
 use super::rng::{hash3, unit_f32};
 use super::sample::{Material, Sample};
@@ -21,9 +22,6 @@ const TURNTABLE: Material = Material::grey(0.05);
 /// Points along the tube whose visibility maps shade preview frames: each serves the light
 /// samples of a quarter of the tube (a four-step penumbra, a quarter of the cost).
 const TUBE_SHADOW_POSITIONS: u32 = 4;
-/// Key for sub-pixel and light-sample jitter: fixed, so only the sensor noise depends on the
-/// caller's seed.
-const JITTER_KEY: u64 = 0x5a3e_11c0_77aa_0001;
 
 /// A surface point seen by a ray.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -436,28 +434,40 @@ impl<'a> Scene<'a> {
 
     /// Mean radiance over the pixel (x, y) of `pose`, in reference units.
     pub fn pixel(&self, pose: &CameraPose, x: u32, y: u32, rays: &mut u64) -> Vec3A {
+        self.pixel_with(pose, None, x, y, rays)
+    }
+
+    /// [`Self::pixel`], reading the lens's undistorted sample points from `lens` (the camera's
+    /// table, `pixel_samples::LensTables`) when it covers this scene's sampling: the same
+    /// radiance, bit for bit, without the lens inversion.
+    pub fn pixel_with(
+        &self,
+        pose: &CameraPose,
+        lens: Option<&LensTable>,
+        x: u32,
+        y: u32,
+        rays: &mut u64,
+    ) -> Vec3A {
         let side = self.knobs.spp_side;
         let pixel = y as u64 * pose.width as u64 + x as u64;
         let step = 1.0 / side as f32;
+        let lens = lens.filter(|t| t.covers(side, self.laser.is_some()));
+        let ray = |sub: u32, which: usize, px: f32, py: f32| match lens {
+            Some(t) => pose.ray_through(t.uv(pixel, sub, which)),
+            None => pose.ray(px, py),
+        };
         let mut sum = Vec3A::ZERO;
         for sub in 0..side * side {
-            let (jx, jy) = if side == 1 {
-                (0.5, 0.5)
-            } else {
-                let h = hash3(JITTER_KEY, pixel, sub as u64, 7);
-                (unit_f32(h), unit_f32(h.rotate_left(24)))
-            };
-            let px = x as f32 + ((sub % side) as f32 + jx) * step;
-            let py = y as f32 + ((sub / side) as f32 + jy) * step;
-            let d = pose.ray(px, py);
+            let (px, py) = sample_position(x, y, pose.width, sub, side);
+            let d = ray(sub, 0, px, py);
             let Some(h) = self.intersect(pose.origin, d) else {
                 continue;
             };
             let footprint = if self.laser.is_some() {
                 Footprint {
                     origin: pose.origin,
-                    dx: pose.ray(px + step, py),
-                    dy: pose.ray(px, py + step),
+                    dx: ray(sub, 1, px + step, py),
+                    dy: ray(sub, 2, px, py + step),
                     angle: step / pose.focal_px,
                 }
             } else {

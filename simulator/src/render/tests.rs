@@ -761,3 +761,51 @@ fn transport_pass_timings() {
         }
     }
 }
+
+/// A distorted camera's pixels through its lens table are the pixels computed without it,
+/// bit for bit, at 2×2 samples a pixel.
+#[test]
+fn lens_table_pixels_are_the_computed_pixels() {
+    let standard = quality::Quality::Standard.knobs();
+    let rig = small(BUILTIN_LIGHTSTAGE, "bumps");
+    let (r, _) = lightstage("bumps");
+    let sample = r.sample("bumps").expect("sample");
+    let w = world("bumps", &[("lamp1", 1.0)]);
+    let spec = CameraSpec {
+        k1: -0.2,
+        p2: 5e-4,
+        ..rig.camera("cam3").expect("cam3").clone()
+    };
+    let ts = ToSample::new(30.0);
+    let pose = CameraPose::new(&spec, ts);
+    let (lights, _) = lights::lit_lamps(
+        &rig,
+        &crate::as_built::AsBuilt::nominal(&rig),
+        &w,
+        RigAngles::from_world(&rig, &w.axes),
+        ts,
+    );
+    let shading = Shading {
+        shadows: true,
+        specular: true,
+        knobs: &standard,
+    };
+    let scene = Scene::new(&sample, lights, None, vec![], shading, &|_| None);
+    let tables = pixel_samples::LensTables::default();
+    let table = tables.get(&pose, standard.spp_side, false).expect("table");
+    let (mut a, mut b) = (0, 0);
+    for y in 0..H {
+        for x in 0..W {
+            let computed = scene
+                .pixel(&pose, x, y, &mut a)
+                .to_array()
+                .map(f32::to_bits);
+            let tabled = scene
+                .pixel_with(&pose, Some(&table), x, y, &mut b)
+                .to_array()
+                .map(f32::to_bits);
+            assert_eq!(tabled, computed, "({x}, {y})");
+        }
+    }
+    assert_eq!(a, b, "the same shadow rays");
+}
