@@ -22,8 +22,26 @@ use stagehand::storage::RunStatus;
 use common::{db, raw_pixels, root, run_prepared_with};
 
 /// The board set up for the rig below: each axis's speed, acceleration and travel.
-const BOARD: &str = "$110=1800 $111=1200 $112=600 $120=60 $121=40 $122=200 \
+const BOARD: &str = "$110=3600 $111=2400 $112=1200 $120=600 $121=600 $122=600 \
     $130=365 $131=365 $132=65";
+
+/// The built-in rig's axis speeds and accelerations, and the test's: twice the speed and the
+/// boards' fast acceleration (`grbl_peer::FAST`), so the real board's run takes half the rig
+/// time (grbl-sim simulates it in real time, with the rest of the test binary waiting).
+const MOTION: [(&str, &str); 3] = [
+    (
+        "speed_deg_s = 30.0\naccel_deg_s2 = 60.0",
+        "speed_deg_s = 60.0\naccel_deg_s2 = 600.0",
+    ),
+    (
+        "speed_deg_s = 20.0\naccel_deg_s2 = 40.0",
+        "speed_deg_s = 40.0\naccel_deg_s2 = 600.0",
+    ),
+    (
+        "speed_deg_s = 10.0\naccel_deg_s2 = 200.0",
+        "speed_deg_s = 20.0\naccel_deg_s2 = 600.0",
+    ),
+];
 
 /// The quickstart without its closing `home()`: the peer's simulated homing switches
 /// (`patches/homing-switches.diff`) do not survive a second homing cycle on one power-on (on
@@ -39,7 +57,7 @@ fn quickstart_without_closing_home() -> ScriptSource {
     }
 }
 
-/// The built-in light stage with small cameras; with `link`, its axes and laser on the GRBL
+/// The built-in light stage with small cameras and faster axes ([`MOTION`]); with `link`, its axes and laser on the GRBL
 /// board there. The turntable and arc run 0…360° homed at 0° (machine −1…−361), the tilt
 /// −30…30° homed at +30° (machine −61…−1), so GRBL's soft limits hold.
 fn rig(link: Option<&Path>) -> RigSource {
@@ -49,6 +67,13 @@ fn rig(link: Option<&Path>) -> RigSource {
         .replace("width = 1024", "width = 64")
         .replace("height = 768", "height = 48")
         .replacen("min_deg = -180.0", "min_deg = 0.0", 2);
+    for (built_in, fast) in MOTION {
+        assert!(
+            text.contains(built_in),
+            "the built-in rig's motion changed: {built_in}"
+        );
+        text = text.replace(built_in, fast);
+    }
     let grbl = |letter: &str, home: f64, sign: f64| match link {
         Some(l) => format!(
             "backend = \"grbl\"\nport = \"{}\"\ncontroller_axis = \"{letter}\"\nsteps_per_deg = 142.222\nhome_deg = {home:.1}\nmachine_sign = {sign:.1}",
