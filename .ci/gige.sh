@@ -9,8 +9,6 @@
 # cameras fails (STAGEHAND_REQUIRE_PEERS=1) instead of skipping. Extra arguments go to the test
 # binary, e.g.
 #   .ci/gige.sh --ignored --nocapture measure_eight_cameras     # the figures
-# STAGEHAND_GIGE_BUILD_ONLY=1 installs and builds, then stops (CI builds first, then runs the
-# cameras beside the dashboard test, as both wait mostly on their peers' clocks).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export CARGO_TERM_COLOR=never
@@ -36,9 +34,6 @@ cargo test -p stagehand-devices --features cam-v4l,cam-aravis,cam-gphoto2 --test
 quickstart="${STAGEHAND_GIGE_QUICKSTART:-0}"
 if [ "$quickstart" = 1 ]; then
     cargo build -p stagehand --features cam-v4l,cam-aravis,cam-gphoto2
-fi
-if [ "${STAGEHAND_GIGE_BUILD_ONLY:-0}" = 1 ]; then
-    exit 0
 fi
 
 # aravis's discovery broadcasts on every interface that is up, so the cameras and the tests run
