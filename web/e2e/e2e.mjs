@@ -652,7 +652,9 @@ async function main() {
     await shot(page, 'arm-dialog');
     await page.click('#arm-confirm');
     await dlg.waitFor({ state: 'hidden' });
-    await page.locator('#laser .l-armed', { hasText: 'ARMED' }).waitFor();
+    // A string `hasText` matches case-insensitively, and "disarmed" contains "armed": only
+    // the exact badge proves the arm went through before the status is read.
+    await page.locator('#laser .l-armed', { hasText: /^ARMED$/ }).waitFor();
     const laser = (await status()).devices.laser;
     if (!laser.armed) throw new Failure(`the laser is not armed in the status: ${JSON.stringify(laser)}`);
     await noErrorToasts(page, 'arm');
