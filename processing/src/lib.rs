@@ -45,6 +45,8 @@
 //! | [`dipole_exit`] | a view's exit function: the light sent over the fitted medium's |
 //! | [`dipole_products`] | `process --products dipole`: α′ and σ′t per laser colour from the lines at normal incidence |
 //! | [`dipole_fit`] | α′ and σ′t from a laser line's lateral falloff |
+//! | [`dipole_local`] | the local reflectance function: a halogen capture less the dipole's global term |
+//! | [`local_products`] | `process --products local`: the local reflectance function of every step-3 capture |
 //! | [`ward`] | the isotropic Ward lobe of the reflectometer fit |
 //! | [`ward_tube`] | the reflectometer tube's diffuse and specular integrals at a sample point |
 //! | [`ward_fit`] | a pixel's Ward ρd, ρs and α from its cart sweep, weak cases flagged |
@@ -69,6 +71,7 @@ pub mod dipole;
 pub mod dipole_entrance;
 pub mod dipole_exit;
 pub mod dipole_fit;
+pub mod dipole_local;
 pub mod dipole_products;
 pub mod dipole_profile;
 pub mod error;
@@ -81,6 +84,7 @@ pub mod laser_plane_calibration;
 pub mod laser_planes;
 pub mod laser_sheet;
 pub(crate) mod line_search;
+pub mod local_products;
 pub mod mdf_merge;
 pub mod mdf_products;
 pub mod nominal_geometry;

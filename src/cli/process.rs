@@ -24,6 +24,7 @@ use stagehand_processing::dipole_products::{
 use stagehand_processing::hdr_frame::MergeWeight;
 use stagehand_processing::laser_plane_calibration::LaserPlanesResult;
 use stagehand_processing::laser_planes::LaserPlanes;
+use stagehand_processing::local_products::{LocalSetup, LocalSummary, local_products};
 use stagehand_processing::mdf_merge::MergeOptions;
 use stagehand_processing::mdf_products::{MdfSetup, MdfSummary, mdf_products};
 use stagehand_processing::rectify::RectifyGrid;
@@ -92,6 +93,12 @@ pub enum Product {
     /// 1's oblique lines (`products/entrance/<nm>nm.json`: per direction of incidence, the
     /// light entering relative to normal incidence, per camera and averaged).
     Entrance,
+    /// The local reflectance function of every halogen capture of step 3 (seed eq. 5.67):
+    /// `products/local/<cam>_<table>deg_arc<arc>deg_<lamp>.exr` in the camera's pixels, the
+    /// capture less the dipole's global term in reflectance-factor units (`local.R/G/B`,
+    /// clamped at 0; `known.R/G/B`; `global.R/G/B`, the term subtracted). Makes the dipole
+    /// fits, exit and entrance functions first; needs a colour calibration of the lamps.
+    Local,
 }
 
 /// `--depth-method`.
@@ -156,6 +163,8 @@ pub struct ProcessArgs {
 struct Calibrations {
     response: Option<(ResponseSet, String)>,
     colour: Option<(ColourSet, String)>,
+    /// The response calibration the colour calibration was made through.
+    colour_response: String,
     geometry: Option<(BTreeMap<String, CameraGeometry>, String)>,
     laser_planes: Option<(LaserPlanes, String)>,
     /// The sources per camera, the id, and the response calibration it was made through.
@@ -182,6 +191,10 @@ fn load_calibrations(root: &std::path::Path, ids: &[String]) -> Result<Calibrati
             CalibrationKind::Colour if found.colour.is_some() => return Err(twice()),
             CalibrationKind::Colour => {
                 found.colour = Some((stored.result(kind).map_err(store_err)?, stored.id.clone()));
+                found.colour_response = stored.calibration.parameters["response"]
+                    .as_str()
+                    .unwrap_or_default()
+                    .to_string();
             }
             CalibrationKind::Geometry if found.geometry.is_some() => return Err(twice()),
             CalibrationKind::Geometry => {
@@ -412,8 +425,26 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
     } else {
         None
     };
-    let dipole = if want(Product::Dipole) || want(Product::Exit) || want(Product::Entrance) {
+    let local = want(Product::Local);
+    if local {
+        local_inputs(&found)?;
+    }
+    let dipole = if want(Product::Dipole) || want(Product::Exit) || want(Product::Entrance) || local
+    {
         Some(dipole_fits(
+            &args,
+            &found,
+            &rig,
+            &root,
+            turntable.as_deref(),
+            &mut store,
+            &software,
+        )?)
+    } else {
+        None
+    };
+    let local = if local {
+        Some(local_maps(
             &args,
             &found,
             &rig,
@@ -429,6 +460,7 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
         summary,
         reflectometer,
         dipole,
+        local,
         btf_layout: layout.as_ref().map(|l| BtfReport {
             views: l.views.len(),
             lights: l.lights.len(),
@@ -565,11 +597,71 @@ fn dipole_fits(
             ..DipoleOptions::default()
         },
         cameras: (!args.cameras.is_empty()).then_some(args.cameras.as_slice()),
-        exit: args.products.contains(&Product::Exit),
-        entrance: args.products.contains(&Product::Entrance),
+        exit: args.products.contains(&Product::Exit) || args.products.contains(&Product::Local),
+        entrance: args.products.contains(&Product::Entrance)
+            || args.products.contains(&Product::Local),
     };
     let made = with_progress("colours", |progress| {
         dipole_products(store, setup, software, progress)
+    })
+    .map_err(processing_err)?;
+    Ok(made)
+}
+
+/// The colour calibration `local` needs, checked before the dipole pass runs: it must exist
+/// and be made through the response calibration the captures are merged with.
+fn local_inputs(found: &Calibrations) -> Result<(&ColourSet, &str), SessionError> {
+    let (colour, colour_id) = found.colour.as_ref().ok_or_else(|| {
+        SessionError::Io(
+            "local needs a colour calibration of the lamps (S per camera and lamp, which turns a halogen capture into reflectance): --calibration colour-… (make one with `stagehand calibrate colour` on a run of sequences/calibration_colorchecker.rhai)".into(),
+        )
+    })?;
+    if let Some((_, response_id)) = &found.response
+        && found.colour_response != *response_id
+    {
+        return Err(SessionError::Io(format!(
+            "--calibration {colour_id} was made through response calibration {}, not {response_id}: its scales are in that calibration's units; process with --calibration {}",
+            found.colour_response, found.colour_response
+        )));
+    }
+    Ok((colour, colour_id))
+}
+
+/// The local reflectance function of a quasi-homogeneous run's step 3, after its dipole pass.
+fn local_maps(
+    args: &ProcessArgs,
+    found: &Calibrations,
+    rig: &stagehand_devices::rig::RigSpec,
+    root: &std::path::Path,
+    turntable: Option<&str>,
+    store: &mut ProductStore,
+    software: &str,
+) -> Result<LocalSummary, SessionError> {
+    let (colour, colour_id) = local_inputs(found)?;
+    let (responses, response_id) = found.response.as_ref().ok_or_else(|| {
+        SessionError::Io(
+            "local needs a response calibration: --calibration response-… (make one with `stagehand calibrate response`)".into(),
+        )
+    })?;
+    let (geometry, geometry_id) = cameras_geometry(args, found, rig, root)?;
+    let light_arc = rig.axis_with_role(AxisRole::LightArc).map(|a| a.id.clone());
+    let lamps: BTreeMap<String, f64> = rig
+        .lamps
+        .iter()
+        .filter(|l| l.kind == LampKind::Halogen)
+        .map(|l| (l.id.clone(), l.elevation_deg))
+        .collect();
+    let setup = LocalSetup {
+        response: (responses, response_id),
+        colour: (colour, colour_id),
+        geometry: (&geometry, &geometry_id),
+        turntable_axis: turntable,
+        light_arc_axis: light_arc.as_deref(),
+        lamps: &lamps,
+        cameras: (!args.cameras.is_empty()).then_some(args.cameras.as_slice()),
+    };
+    let made = with_progress("views", |progress| {
+        local_products(store, setup, software, progress)
     })
     .map_err(processing_err)?;
     Ok(made)
@@ -618,6 +710,7 @@ struct Report {
     surface: Option<SurfaceSummary>,
     reflectometer: Option<ReflectometerSummary>,
     dipole: Option<DipoleSummary>,
+    local: Option<LocalSummary>,
 }
 
 fn print_report(report: &Report, args: &ProcessArgs) {
@@ -724,6 +817,33 @@ fn print_report(report: &Report, args: &ProcessArgs) {
                     format!("; flagged {}", flags.join(", "))
                 }
             );
+        }
+    }
+    if let Some(l) = &report.local {
+        println!(
+            "local: {} maps written, {} already current, {} captures left out",
+            l.written,
+            l.skipped,
+            l.left_out.len()
+        );
+        for (name, c) in ["R", "G", "B"].iter().zip(&l.channels) {
+            if c.known > 0 {
+                println!(
+                    "  {name}: {} pixels, {:.1} % clamped at 0; the dipole's global term is {:.1} % of the light",
+                    c.known,
+                    100.0 * c.clamped as f64 / c.known as f64,
+                    100.0 * c.global / c.captured.max(f64::MIN_POSITIVE)
+                );
+            }
+        }
+        if l.extrapolated > 0 {
+            println!(
+                "  {} maps light the sample from outside step 1's mounts: the entrance function extrapolated",
+                l.extrapolated
+            );
+        }
+        for o in l.left_out.iter().take(3) {
+            println!("  left out: {}: {}", o.frame, o.why);
         }
     }
     println!(

@@ -317,3 +317,78 @@ pub fn evaluate_exit(run_dir: &Path) -> Result<Option<ExitFigures>, EvaluateErro
         error: Spread::of(errors),
     }))
 }
+
+/// The local reflectance maps (`process --products local`) against the truth. The simulator's
+/// surface reflects locally only through its BRDF: where it has no specular lobe (Lambert, or
+/// ρs 0) the true local reflectance factor of a flat sample is its albedo (0 under a medium,
+/// whose dipole supplies the diffuse light), which is what is compared; pixels with a lobe
+/// are counted, not compared. Errors are fractions of the captured light.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LocalFigures {
+    /// Maps compared.
+    pub maps: usize,
+    /// Known pixel channels compared.
+    pub pixels: usize,
+    /// Known pixel channels not compared (the truth has a specular lobe there).
+    pub not_evaluated: usize,
+    /// |global + true local − captured| / captured: the fitted material re-rendered under
+    /// each lamp against the capture.
+    pub rerender: Option<Spread>,
+    /// The median of that error, signed (positive: the global term reads high).
+    pub rerender_bias: f64,
+    /// |local − true local| / captured.
+    pub local_error: Option<Spread>,
+    /// Fraction of the known pixel channels clamped at 0.
+    pub clamped: f64,
+}
+
+/// Evaluates the run's `local` products, if it has any and ground truth beside them.
+pub fn evaluate_local(run_dir: &Path) -> Result<Option<LocalFigures>, EvaluateError> {
+    let Some(pairs) = pairs(run_dir, "local")? else {
+        return Ok(None);
+    };
+    let (mut pixels, mut skipped, mut known, mut clamped) = (0, 0, 0, 0);
+    let (mut rerender, mut signed, mut local_error) = (Vec::new(), Vec::new(), Vec::new());
+    for Pair { product, truth } in &pairs {
+        let (ks, model) = (channel(truth, "ks")?, channel(truth, "model")?);
+        for name in ["R", "G", "B"] {
+            let is_known = channel(product, &format!("known.{name}"))?;
+            let local = channel(product, &format!("local.{name}"))?;
+            let global = channel(product, &format!("global.{name}"))?;
+            let captured = channel(product, &format!("captured.{name}"))?;
+            let albedo = channel(truth, &format!("albedo.{name}"))?;
+            for i in (0..is_known.len()).filter(|&i| is_known[i] > 0.0) {
+                known += 1;
+                clamped += usize::from(f64::from(captured[i]) < f64::from(global[i]));
+                if model[i] != 0.0 && ks[i] > 0.0 {
+                    skipped += 1;
+                    continue;
+                }
+                let cap = f64::from(captured[i]);
+                if cap <= 0.0 {
+                    continue;
+                }
+                let truth_local = f64::from(albedo[i]);
+                let e = (f64::from(global[i]) + truth_local - cap) / cap;
+                pixels += 1;
+                rerender.push(e.abs());
+                signed.push(e);
+                local_error.push((f64::from(local[i]) - truth_local).abs() / cap);
+            }
+        }
+    }
+    signed.sort_by(f64::total_cmp);
+    Ok(Some(LocalFigures {
+        maps: pairs.len(),
+        pixels,
+        not_evaluated: skipped,
+        rerender: Spread::of(rerender),
+        rerender_bias: signed.get(signed.len() / 2).copied().unwrap_or(0.0),
+        local_error: Spread::of(local_error),
+        clamped: if known > 0 {
+            clamped as f64 / known as f64
+        } else {
+            0.0
+        },
+    }))
+}

@@ -28,8 +28,8 @@ pub use geometry::{CameraFigures, GeometryFigures, evaluate_geometry, truth_geom
 pub use hdr::{ErrorFigures, HdrFigures, evaluate_hdr};
 pub use laser_planes::{LaserPlaneFigures, evaluate_laser_planes};
 pub use material::{
-    ExitFigures, Spread, TransparencyFigures, WardFigures, evaluate_exit, evaluate_transparency,
-    evaluate_ward,
+    ExitFigures, LocalFigures, Spread, TransparencyFigures, WardFigures, evaluate_exit,
+    evaluate_local, evaluate_transparency, evaluate_ward,
 };
 pub use rectified::{RectifiedFigures, evaluate_rectified};
 pub use response::{ChannelFigures, ResponseFigures, evaluate_response};
@@ -83,6 +83,8 @@ pub struct Report {
     pub exit: Option<ExitFigures>,
     /// The entrance functions against the simulator's Fresnel transmittance.
     pub entrance: Option<EntranceFigures>,
+    /// The local reflectance maps against the material plane.
+    pub local: Option<LocalFigures>,
 }
 
 /// The run's reader and its products of `kind`; `None` when it has none.
@@ -146,6 +148,7 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
         dipole: None,
         exit: None,
         entrance: None,
+        local: None,
     };
     for stored in calibration_store::list(&root)?.into_iter().flatten() {
         if !stored.calibration.inputs.iter().any(|i| i.run_id == run_id)
@@ -179,5 +182,6 @@ pub fn evaluate(run_dir: &Path) -> Result<Report, EvaluateError> {
     report.dipole = evaluate_dipole(run_dir)?;
     report.exit = evaluate_exit(run_dir)?;
     report.entrance = evaluate_entrance(run_dir)?;
+    report.local = evaluate_local(run_dir)?;
     Ok(report)
 }

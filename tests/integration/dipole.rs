@@ -2,8 +2,9 @@
 //! as-built cameras, lasers and sensors): a response sweep and `calibrate response`; steps 1
 //! and 2 of quasi_homogeneous.rhai (a line from each of two mounts on the light arc; then the
 //! laser overhead, its power measured on the opal reference, and its line on the sample from
-//! four views) for a red and a blue laser; `process --products dipole,entrance` and
-//! `evaluate` against the sample's medium. The cameras' exact geometry
+//! four views) for a red and a blue laser; step 3 under two lamps from one view;
+//! `process --products dipole,entrance,local` (the local reflectance function through a colour
+//! calibration of the lamps) and `evaluate` against the sample's medium. The cameras' exact geometry
 //! (`calibrate geometry --from-truth`) is used so that the figures measure the dipole fit, not a
 //! geometric calibration.
 
@@ -34,34 +35,70 @@ fn felt(dir: &Path, name: &str, meso: &str) -> String {
     path(&file).to_string()
 }
 
-/// The as-built light stage at 480×360 with ground truth, its sample `scene` 60 mm wide.
-fn rig(scene: &str) -> RigSource {
+/// The as-built light stage at 480×360, its sample `scene` 60 mm wide, with the material
+/// plane of ground truth (what the exit and local maps are evaluated against; the radiance
+/// plane would render every frame twice) when `truth`.
+fn rig_with(scene: &str, truth: bool) -> RigSource {
     as_built_rig_with("gentle", 12, |t| {
-        t.replace("sample = \"bumps\"", &format!("sample = \"{scene}\""))
-            .replace("sample_size_mm = 80.0", "sample_size_mm = 60.0")
-            .replacen("[sim]\n", "[sim]\nground_truth = true\n", 1)
+        let t = t
+            .replace("sample = \"bumps\"", &format!("sample = \"{scene}\""))
+            .replace("sample_size_mm = 80.0", "sample_size_mm = 60.0");
+        if truth {
+            t.replacen("[sim]\n", "[sim]\nground_truth = [\"material\"]\n", 1)
+        } else {
+            t
+        }
     })
 }
 
-/// The folder the tests' runs share and the response calibration made there once (a sweep on
-/// the rig's cameras, whatever the sample: the colour checker is placed for it).
-fn shared() -> &'static (PathBuf, String) {
-    static SHARED: OnceLock<(PathBuf, String)> = OnceLock::new();
+/// [`rig_with`] the material plane.
+fn rig(scene: &str) -> RigSource {
+    rig_with(scene, true)
+}
+
+/// The folder the tests' runs share, the response calibration made there once (a sweep on
+/// the rig's cameras, whatever the sample: the colour checker is placed for it) and the colour
+/// calibration of the first two lamps through it.
+fn shared() -> &'static (PathBuf, String, String) {
+    static SHARED: OnceLock<(PathBuf, String, String)> = OnceLock::new();
     SHARED.get_or_init(|| {
         let out = static_dir("dipole-shared");
         let scene = felt(&out, "flat_felt", "");
-        let sweep = run_sequence("calibration_response.rhai", rig(&scene), &[], &out, 1);
+        let sweep = run_sequence(
+            "calibration_response.rhai",
+            rig_with(&scene, false),
+            &[],
+            &out,
+            1,
+        );
         sweep.result.as_ref().expect("the response sweep runs");
         let response = stagehand(&["calibrate", "response", path(&sweep.dir), "--json"]);
         let id = response["id"].as_str().expect("an id").to_string();
-        (out, id)
+        let chart = run_sequence(
+            "calibration_colorchecker.rhai",
+            rig_with(&scene, false),
+            &[("lamps", "2")],
+            &out,
+            2,
+        );
+        chart.result.as_ref().expect("the colour checker run runs");
+        let colour = stagehand(&[
+            "calibrate",
+            "colour",
+            path(&chart.dir),
+            "--response",
+            &id,
+            "--json",
+        ]);
+        let colour = colour["id"].as_str().expect("an id").to_string();
+        (out, id, colour)
     })
 }
 
 #[test]
 fn the_dipole_comes_back_from_laser_lines_on_a_simulated_medium() {
     let _turn = crate::grbl_peer::alongside();
-    let (out, response) = shared();
+    let (out, response, colour) = shared();
     let out = out.as_path();
     let scene = felt(out, "flat_felt", "");
 
@@ -72,7 +109,9 @@ fn the_dipole_comes_back_from_laser_lines_on_a_simulated_medium() {
             ("colours", "650,473"),
             ("mounts", "2"),
             ("rotations", "1"),
-            ("step3", "false"),
+            ("lights", "1"),
+            ("lamps", "2"),
+            ("views3", "1"),
             ("views", "4"),
             ("lines", "1"),
             ("sweep_deg", "0"),
@@ -130,20 +169,47 @@ fn the_dipole_comes_back_from_laser_lines_on_a_simulated_medium() {
         );
     }
 
-    let args: Vec<String> = process(&["--reference-albedo", "0.8"])
-        .into_iter()
-        .map(|a| {
-            if a == "dipole" {
-                "dipole,entrance".into()
-            } else {
-                a
-            }
-        })
-        .collect();
+    let with = |products: &str, extra: &[&str]| -> Vec<String> {
+        let mut args: Vec<String> = process(&["--reference-albedo", "0.8"])
+            .into_iter()
+            .map(|a| if a == "dipole" { products.into() } else { a })
+            .collect();
+        args.extend(extra.iter().map(|s| s.to_string()));
+        args
+    };
+    // The local reflectance function needs the lamps' colour calibration.
+    let refused = stagehand_output(
+        &with("local", &[])
+            .iter()
+            .map(String::as_str)
+            .collect::<Vec<_>>(),
+    );
+    let text = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        !refused.status.success() && text.contains("local needs a colour calibration"),
+        "{text}"
+    );
+
+    let args = with("dipole,entrance,local", &["--calibration", colour]);
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     let made = stagehand(&args);
     assert_eq!(made["dipole"]["written"], 2, "{made:#}");
     assert_eq!(made["dipole"]["entrance_written"], 2, "{made:#}");
+    // Step 3: two lamps from the view at turntable 0°, which step 2 measured. cam1 and cam2
+    // see the sample too low for an exit map, and cam3's map of the one line is lit too
+    // little, so their captures are left out.
+    let local = &made["local"];
+    eprintln!("local: {local:#}");
+    assert_eq!(local["written"], 10, "{local:#}");
+    assert_eq!(
+        local["left_out"].as_array().map(Vec::len),
+        Some(6),
+        "{local:#}"
+    );
+    // lamp1 at 10° of elevation lies below step 1's lowest mount (15°).
+    assert_eq!(local["extrapolated"], 5, "{local:#}");
+    // No green laser: the green channel is unknown everywhere.
+    assert_eq!(local["channels"][1]["known"], 0, "{local:#}");
     let report = stagehand(&["evaluate", path(&run.dir)]);
     let dipole = &report["dipole"];
     eprintln!("dipole: {dipole:#}");
@@ -179,9 +245,29 @@ fn the_dipole_comes_back_from_laser_lines_on_a_simulated_medium() {
         let error = d["error"].as_f64().expect("an error");
         assert!(error.abs() < 0.04, "{d:#}");
     }
+    // Step 3's halogen images against the fitted medium re-rendered under each lamp: the
+    // simulated felt reflects nothing locally (its surface is Lambert with the medium's
+    // albedo 0), so the local function should be near 0 and the global term the capture.
+    let local = &report["local"];
+    eprintln!("local: {local:#}");
+    assert_eq!(local["maps"], 10, "{local:#}");
+    assert!(local["pixels"].as_u64().unwrap() > 1000, "{local:#}");
+    // Measured: the re-render within 2.5 % (median; 95th percentile 11 %, the sensor's noise
+    // in single pixels) and 1.2 % low; the local function 1.2 % of the light (median).
+    let rerender = local["rerender"]["median"].as_f64().expect("an error");
+    assert!(rerender < 0.05, "{local:#}");
+    assert!(
+        local["rerender_bias"].as_f64().unwrap().abs() < 0.03,
+        "{local:#}"
+    );
+    assert!(
+        local["local_error"]["median"].as_f64().unwrap() < 0.03,
+        "{local:#}"
+    );
     // A rerun makes nothing again.
     let again = stagehand(&args);
     assert_eq!(again["dipole"]["skipped"], 2, "{again:#}");
+    assert_eq!(again["local"]["skipped"], 10, "{again:#}");
 }
 
 /// Felt's medium under a mesostructure (value noise of 2 mm features, its exit and entrance
@@ -189,7 +275,7 @@ fn the_dipole_comes_back_from_laser_lines_on_a_simulated_medium() {
 #[test]
 fn the_exit_function_comes_back_from_a_sweep_over_a_mesostructure() {
     let _turn = crate::grbl_peer::alongside();
-    let (out, response) = shared();
+    let (out, response, _) = shared();
     let out = out.as_path();
     let scene = felt(
         out,
