@@ -9,6 +9,8 @@
 # cameras fails (STAGEHAND_REQUIRE_PEERS=1) instead of skipping. Extra arguments go to the test
 # binary, e.g.
 #   .ci/gige.sh --ignored --nocapture measure_eight_cameras     # the figures
+# A first argument `install`, `build` or `test` runs only that part (CI overlaps them with other
+# work); without one, all three run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export CARGO_TERM_COLOR=never
@@ -16,25 +18,34 @@ export CARGO_TERM_COLOR=never
 sudo_=""
 [ "$(id -u)" = 0 ] || sudo_="sudo"
 
+part="all"
+case "${1:-}" in
+    install|build|test) part="$1"; shift ;;
+esac
+
 packages="aravis-tools libaravis-dev libgphoto2-dev libusb-1.0-0-dev libclang-dev pkg-config"
 missing=""
 for p in $packages; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
 done
-if [ -n "$missing" ]; then
+if [ -n "$missing" ] && [ "$part" != test ]; then
     echo "== installing$missing"
     $sudo_ apt-get update -qq
     DEBIAN_FRONTEND=noninteractive $sudo_ apt-get install -y -qq $missing >/dev/null
 fi
+[ "$part" = install ] && exit 0
 
-echo "== cargo test --no-run, cargo build (outside the namespace: they may need crates.io)"
-cargo test -p stagehand-devices --features cam-v4l,cam-aravis,cam-gphoto2 --test aravis_gige --no-run
 # The whole quickstart on the cameras needs the binary built with every camera backend (about
 # 3.5 minutes of CI with its run): opt in with STAGEHAND_GIGE_QUICKSTART=1.
 quickstart="${STAGEHAND_GIGE_QUICKSTART:-0}"
-if [ "$quickstart" = 1 ]; then
-    cargo build -p stagehand --features cam-v4l,cam-aravis,cam-gphoto2
+if [ "$part" != test ]; then
+    echo "== cargo test --no-run, cargo build (outside the namespace: they may need crates.io)"
+    cargo test -p stagehand-devices --features cam-v4l,cam-aravis,cam-gphoto2 --test aravis_gige --no-run
+    if [ "$quickstart" = 1 ]; then
+        cargo build -p stagehand --features cam-v4l,cam-aravis,cam-gphoto2
+    fi
 fi
+[ "$part" = build ] && exit 0
 
 # aravis's discovery broadcasts on every interface that is up, so the cameras and the tests run
 # in a private network namespace with only loopback: nothing leaves the machine.

@@ -13,11 +13,13 @@ use stagehand_dataset::products::ProductStore;
 use super::common::calibration::{exact_geometry, stagehand, stagehand_output};
 use super::common::{run_sequence, small_rig};
 
-/// The reflectometer rig at 128×96, with ground truth and as-built deviations.
+/// The reflectometer rig at 128×96, with as-built deviations and the material plane of ground
+/// truth (what the maps are evaluated against; the radiance plane would render every frame
+/// twice).
 fn rig() -> RigSource {
     let text = small_rig("reflectometer", 128, 96).text.replacen(
         "[sim]\n",
-        "[sim]\nground_truth = true\n",
+        "[sim]\nground_truth = [\"material\"]\n",
         1,
     ) + "\n[sim.as_built]\nseed = 5\n";
     RigSource::from_text(&text, "test:reflectometer+as_built").expect("rig parses")

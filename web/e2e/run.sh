@@ -2,7 +2,8 @@
 # The dashboard's end-to-end test in headless Debian Chromium (playwright-core from npm):
 # installs Chromium if missing, the npm dependency from the lock file, then runs e2e.mjs, which
 # starts its own daemon from $STAGEHAND_BIN (default target/debug/stagehand, built if missing).
-# Screenshots: $SCREENSHOT_DIR (default target/e2e-screenshots).
+# Screenshots: $SCREENSHOT_DIR (default target/e2e-screenshots). E2E_INSTALL_ONLY=1 stops after
+# the installs (CI makes them while it builds).
 set -euo pipefail
 
 HERE="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
@@ -28,6 +29,7 @@ command -v node >/dev/null || { echo "e2e: node is missing (Node.js 18 or newer)
     npm install --no-audit --no-fund --loglevel=error
   fi
 )
+[ "${E2E_INSTALL_ONLY:-0}" = 1 ] && exit 0
 
 if [ -z "${STAGEHAND_BIN:-}" ]; then
   export STAGEHAND_BIN="$ROOT/target/debug/stagehand"
