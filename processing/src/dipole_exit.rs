@@ -14,51 +14,64 @@ pub(crate) fn sees_steeply(geometry: Option<&CameraGeometry>, min_cos: f64) -> b
     })
 }
 
-/// One view's pixels beside the lines of its sweep.
+/// One view's sums over the lines of its sweep, per pixel: the light each line sent and what
+/// the fitted medium sends there (the clipped core left out). Fixed memory per view, however
+/// many lines the sweep has.
 #[derive(Debug, Clone)]
 pub(crate) struct ExitView {
-    pub(crate) size: (usize, usize),
-    pub(crate) table_deg: f64,
-    pub(crate) truth_frame: String,
-    /// (pixel index, distance from the line, value) over every line of the sweep, in single
-    /// precision: half the memory of a view's millions, far finer than the sensor's noise.
-    pub(crate) pixels: Vec<(u32, f32, f32)>,
+    seen: Vec<f64>,
+    model: Vec<f64>,
 }
 
 /// Lines contribute to a point's exit function only while they light it at least this much of
 /// the best-lit point's light (dark points are left at 0: the seed's threshold).
 pub(crate) const EXIT_MIN_WEIGHT: f64 = 0.05;
 
-/// A view's exit function, interleaved (exit, weight) per pixel: the light each point sent
-/// over what the fitted homogeneous medium sends, summed over the lines (so each line weighs
-/// by how well it lit the point); the clipped core left out.
-pub(crate) fn exit_maps(
-    view: &ExitView,
-    medium: &DipoleMedium,
-    width_mm: f64,
-    core_mm: f64,
-) -> Vec<f32> {
-    let n = view.size.0 * view.size.1;
-    let (mut seen, mut model) = (vec![0.0f64; n], vec![0.0f64; n]);
-    for &(i, s, v) in &view.pixels {
-        let (i, s, v) = (i as usize, f64::from(s), f64::from(v));
-        if i < n && s.abs() > core_mm {
-            seen[i] += v;
-            model[i] += blurred_profile(medium, s, width_mm);
+impl ExitView {
+    /// A view of `n` pixels, nothing summed yet.
+    pub(crate) fn new(n: usize) -> ExitView {
+        ExitView {
+            seen: vec![0.0; n],
+            model: vec![0.0; n],
         }
     }
-    let top = model.iter().copied().fold(0.0f64, f64::max);
-    (0..n)
-        .flat_map(|i| {
-            let weight = if top > 0.0 { model[i] / top } else { 0.0 };
-            let exit = if weight >= EXIT_MIN_WEIGHT {
-                seen[i] / model[i]
-            } else {
-                0.0
-            };
-            [exit as f32, weight as f32]
-        })
-        .collect()
+
+    /// Adds pixel `index`'s value `v` at distance `s_mm` from a line: what it sent, and what
+    /// `medium`'s profile (blurred by `width_mm`) predicts there; nothing inside the core.
+    pub(crate) fn add(
+        &mut self,
+        index: usize,
+        s_mm: f64,
+        v: f64,
+        medium: &DipoleMedium,
+        width_mm: f64,
+        core_mm: f64,
+    ) {
+        if index < self.seen.len() && s_mm.abs() > core_mm && v.is_finite() {
+            self.seen[index] += v;
+            self.model[index] += blurred_profile(medium, s_mm, width_mm);
+        }
+    }
+
+    /// The view's exit function, interleaved (exit, weight) per pixel: the light each point
+    /// sent over what the fitted homogeneous medium sends, summed over the lines (so each line
+    /// weighs by how well it lit the point).
+    pub(crate) fn maps(&self) -> Vec<f32> {
+        let top = self.model.iter().copied().fold(0.0f64, f64::max);
+        self.seen
+            .iter()
+            .zip(&self.model)
+            .flat_map(|(&seen, &model)| {
+                let weight = if top > 0.0 { model / top } else { 0.0 };
+                let exit = if weight >= EXIT_MIN_WEIGHT {
+                    seen / model
+                } else {
+                    0.0
+                };
+                [exit as f32, weight as f32]
+            })
+            .collect()
+    }
 }
 
 #[cfg(test)]
@@ -74,21 +87,15 @@ mod tests {
             sigma_t_p: 1.2,
             eta: 1.3,
         };
-        let mut pixels = Vec::new();
+        let mut view = ExitView::new(100);
         for k in 0..100 {
             for offset in [0.0, 3.0] {
                 let s = 0.1 * k as f64 + offset;
                 let v = 0.7 * blurred_profile(&medium, s, 0.2);
-                pixels.push((k as u32, s as f32, v as f32));
+                view.add(k, s, v, &medium, 0.2, 0.8);
             }
         }
-        let view = ExitView {
-            size: (100, 1),
-            table_deg: 0.0,
-            truth_frame: String::new(),
-            pixels,
-        };
-        let maps = exit_maps(&view, &medium, 0.2, 0.8);
+        let maps = view.maps();
         for k in 0..100 {
             let (exit, weight) = (maps[2 * k], maps[2 * k + 1]);
             assert!((0.0..=1.0).contains(&weight), "{k}: {weight}");

@@ -27,7 +27,7 @@ use stagehand_dataset::products::{NewProduct, ProductStore};
 use crate::calibrate_geometry::CameraGeometry;
 use crate::dipole::{DipoleMedium, fresnel_transmittance, hemispherical_transmittance};
 use crate::dipole_entrance::{Directions, EntranceDirection, line_amplitude};
-use crate::dipole_exit::{ExitView, exit_maps, sees_steeply};
+use crate::dipole_exit::{ExitView, sees_steeply};
 use crate::dipole_fit::{DipoleFit, blurred_profile};
 use crate::dipole_profile::{
     Bins, LineFrame, LinePixel, PlanePixel, fit_bins, line_frame, plane_pixels, reference_line,
@@ -164,38 +164,71 @@ pub struct DipoleSummary {
     pub fits: Vec<(u32, DipoleFit, Rerender)>,
 }
 
-/// Compares the fitted profile with every pixel's value outside the core.
-fn rerender(
-    seen: &[(f32, f32)],
-    fit: &DipoleFit,
-    eta: f64,
-    line_width_mm: f64,
-    core_mm: f64,
-) -> Rerender {
-    let medium = DipoleMedium {
-        alpha_p: fit.alpha_p,
-        sigma_t_p: fit.sigma_t_p,
-        eta,
-    };
-    let (mut num, mut den, mut rel) = (0.0, 0.0, Vec::new());
-    for (s, v) in seen
-        .iter()
-        .map(|&(s, v)| (f64::from(s), f64::from(v)))
-        .filter(|(s, _)| s.abs() > core_mm)
-    {
-        let model = blurred_profile(&medium, s, line_width_mm);
-        if model > 0.0 {
-            num += (v - model).powi(2);
-            den += model * model;
-            rel.push(((v - model) / model).abs());
+/// Most pixels whose relative error is kept for the re-render's median (8 MB); beyond it an
+/// evenly strided subset is kept (the sums for the RMS take every pixel).
+const RERENDER_SAMPLES: usize = 1 << 21;
+
+/// The fitted profile compared with every usable pixel's value outside the core, streamed:
+/// exact sums for the RMS, and the relative errors of an evenly strided subset for the median.
+struct RerenderSums {
+    num: f64,
+    den: f64,
+    pixels: usize,
+    stride: usize,
+    rel: Vec<f32>,
+}
+
+impl RerenderSums {
+    /// Sums for about `total` pixels.
+    fn new(total: usize) -> RerenderSums {
+        RerenderSums {
+            num: 0.0,
+            den: 0.0,
+            pixels: 0,
+            stride: total.div_ceil(RERENDER_SAMPLES).max(1),
+            rel: Vec::new(),
         }
     }
-    rel.sort_by(f64::total_cmp);
-    Rerender {
-        pixels: rel.len(),
-        relative_rms: if den > 0.0 { (num / den).sqrt() } else { 0.0 },
-        median_relative: rel.get(rel.len() / 2).copied().unwrap_or(0.0),
+
+    /// Adds a pixel's value `v` at distance `s` from the line against `medium`'s profile.
+    fn add(&mut self, s: f64, v: f64, medium: &DipoleMedium, line_width_mm: f64, core_mm: f64) {
+        if s.abs() <= core_mm || !v.is_finite() {
+            return;
+        }
+        let model = blurred_profile(medium, s, line_width_mm);
+        if model > 0.0 {
+            self.num += (v - model).powi(2);
+            self.den += model * model;
+            if self.pixels.is_multiple_of(self.stride) {
+                self.rel.push(((v - model) / model).abs() as f32);
+            }
+            self.pixels += 1;
+        }
     }
+
+    fn finish(mut self) -> Rerender {
+        self.rel.sort_by(f32::total_cmp);
+        Rerender {
+            pixels: self.pixels,
+            relative_rms: if self.den > 0.0 {
+                (self.num / self.den).sqrt()
+            } else {
+                0.0
+            },
+            median_relative: self
+                .rel
+                .get(self.rel.len() / 2)
+                .map_or(0.0, |&r| f64::from(r)),
+        }
+    }
+}
+
+/// A view's exit map as a product: its size, turntable angle and the frame whose truth it is
+/// evaluated against.
+struct ViewInfo {
+    size: (usize, usize),
+    table_deg: f64,
+    truth_frame: String,
 }
 
 /// Each camera's plane pixels at its latest view: (turntable key, frame size, pixels).
@@ -331,22 +364,21 @@ pub fn dipole_products(
         };
         // One exit map per camera and turntable angle (a view: its pixels stay on the same
         // points of the sample through the sweep).
-        let mut views: BTreeMap<(String, i64), ExitView> = BTreeMap::new();
+        let mut views: BTreeMap<(String, i64), ViewInfo> = BTreeMap::new();
         if setup.exit {
             for key in samples
                 .iter()
                 .filter(|k| sees_steeply(geometries.get(&k.camera), options.min_cos_out))
             {
                 let (view, table) = view_of(&run_dir, key, setup.turntable_axis)?;
-                views.entry(view).or_insert_with(|| ExitView {
+                views.entry(view).or_insert_with(|| ViewInfo {
                     size: (key.meta.width as usize, key.meta.height as usize),
                     table_deg: table,
                     truth_frame: key.frames[0].path.clone(),
-                    pixels: Vec::new(),
                 });
             }
         }
-        let exit_new = |(camera, _): &(String, i64), view: &ExitView| NewProduct {
+        let exit_new = |(camera, _): &(String, i64), view: &ViewInfo| NewProduct {
             kind: "exit".into(),
             key: format!("exit/{nm}/{camera}/{:.3}", view.table_deg),
             file_name: format!("{nm}nm_{camera}_{:.0}deg.exr", view.table_deg),
@@ -486,9 +518,11 @@ pub fn dipole_products(
         let mut pooled = Bins::default();
         let mut per_camera: BTreeMap<String, Bins> = BTreeMap::new();
         let mut frames_used = 0;
-        // Every usable pixel's (distance, value), for the re-render: single precision, half
-        // the memory (a full-size run holds millions), far finer than the sensor's noise.
-        let mut seen: Vec<(f32, f32)> = Vec::new();
+        // Pixels neither clipped nor black: the re-render's, counted for its subset's stride.
+        let mut usable = 0;
+        // Pass 1: the profile. The re-render and the exit maps need the fit, so they come in a
+        // second pass over the frames (keeping every pixel for them held gigabytes at full
+        // size).
         for key in samples {
             let Some(reference) = reference_lines.get(&key.camera) else {
                 left_out.push(LeftOut {
@@ -508,11 +542,6 @@ pub fn dipole_products(
                 }
             };
             frames_used += 1;
-            let mut view = if setup.exit {
-                views.get_mut(&view_of(&run_dir, key, setup.turntable_axis)?.0)
-            } else {
-                None
-            };
             let bins = per_camera.entry(key.camera.clone()).or_default();
             for p in &line.pixels {
                 let Some(v) = profile_value(p, reference.phi) else {
@@ -520,12 +549,7 @@ pub fn dipole_products(
                 };
                 pooled.add(options.bin_mm, p.s, v, p);
                 bins.add(options.bin_mm, p.s, v, p);
-                if !(p.clipped || p.black) {
-                    seen.push((p.s as f32, v as f32));
-                    if let Some(view) = view.as_mut() {
-                        view.pixels.push((p.index as u32, p.s as f32, v as f32));
-                    }
-                }
+                usable += usize::from(!(p.clipped || p.black));
             }
         }
         let profile = pooled.profile(options.bin_mm);
@@ -543,7 +567,68 @@ pub fn dipole_products(
                 (camera.clone(), fit)
             })
             .collect();
-        let rerender = rerender(&seen, &fit, options.eta, line_width_mm, core_mm);
+        let medium = DipoleMedium {
+            alpha_p: fit.alpha_p,
+            sigma_t_p: fit.sigma_t_p,
+            eta: options.eta,
+        };
+        // Pass 2, view by view: the fitted medium re-rendered at every usable pixel, and each
+        // view's exit map, written when its frames are summed (one view's sums held at a time).
+        let mut sums = RerenderSums::new(usable);
+        let mut by_view: BTreeMap<(String, i64), Vec<&BracketKey>> = BTreeMap::new();
+        for key in samples
+            .iter()
+            .filter(|k| reference_lines.contains_key(&k.camera))
+        {
+            let view = view_of(&run_dir, key, setup.turntable_axis)?.0;
+            by_view.entry(view).or_default().push(key);
+        }
+        for (k, keys) in &by_view {
+            let info = views.get(k);
+            let mut exit = info.map(|v| ExitView::new(v.size.0 * v.size.1));
+            for key in keys {
+                let reference = reference_lines[&key.camera];
+                // A frame pass 1 left out (with its reason) is left out again.
+                let Ok(line) = line_of(key, &mut planes)? else {
+                    continue;
+                };
+                for p in line.pixels.iter().filter(|p| !(p.clipped || p.black)) {
+                    let Some(v) = profile_value(p, reference.phi) else {
+                        continue;
+                    };
+                    sums.add(p.s, v, &medium, line_width_mm, core_mm);
+                    if let Some(exit) = exit.as_mut() {
+                        exit.add(p.index, p.s, v, &medium, line_width_mm, core_mm);
+                    }
+                }
+            }
+            if let (Some(exit), Some(info)) = (exit, info) {
+                let maps = exit.maps();
+                let made = exit_new(k, info);
+                let metadata = json!({
+                    "camera": k.0,
+                    "colour_nm": nm,
+                    "channels": {
+                        "exit": "light leaving each point over what the fitted homogeneous medium sends (the mesostructure's exit function); 0 where no line lit it",
+                        "weight": "the fitted medium's light summed over the lines, over its largest in the map: how well the point was lit",
+                    },
+                })
+                .to_string();
+                let (w, h) = info.size;
+                let exr = encode_exr_planes(
+                    &made.file_name,
+                    w as u32,
+                    h as u32,
+                    &["exit".to_string(), "weight".to_string()],
+                    &maps,
+                    &metadata,
+                )
+                .map_err(dataset_err(&run_dir))?;
+                store.write(made, &exr).map_err(dataset_err(&run_dir))?;
+                summary.exit_written += 1;
+            }
+        }
+        let rerender = sums.finish();
         let product = DipoleProduct {
             colour_nm: nm,
             channel,
@@ -559,11 +644,6 @@ pub fn dipole_products(
             rerender,
             frames_used,
             left_out,
-        };
-        let medium = DipoleMedium {
-            alpha_p: fit.alpha_p,
-            sigma_t_p: fit.sigma_t_p,
-            eta: options.eta,
         };
         if setup.entrance {
             let mut directions = Directions::default();
@@ -634,31 +714,6 @@ pub fn dipole_products(
             run: run_dir.display().to_string(),
             message: format!("dipole product of {nm} nm: {e}"),
         })?;
-        for (k, view) in &views {
-            let maps = exit_maps(view, &medium, line_width_mm, core_mm);
-            let made = exit_new(k, view);
-            let metadata = json!({
-                "camera": k.0,
-                "colour_nm": nm,
-                "channels": {
-                    "exit": "light leaving each point over what the fitted homogeneous medium sends (the mesostructure's exit function); 0 where no line lit it",
-                    "weight": "the fitted medium's light summed over the lines, over its largest in the map: how well the point was lit",
-                },
-            })
-            .to_string();
-            let (w, h) = view.size;
-            let exr = encode_exr_planes(
-                &made.file_name,
-                w as u32,
-                h as u32,
-                &["exit".to_string(), "weight".to_string()],
-                &maps,
-                &metadata,
-            )
-            .map_err(dataset_err(&run_dir))?;
-            store.write(made, &exr).map_err(dataset_err(&run_dir))?;
-            summary.exit_written += 1;
-        }
         store.write(new, &bytes).map_err(dataset_err(&run_dir))?;
         summary.written += 1;
         summary.fits.push((nm, fit, rerender));
