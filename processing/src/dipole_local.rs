@@ -138,6 +138,16 @@ pub struct LocalCounts {
     pub global: f64,
 }
 
+impl std::ops::AddAssign for LocalCounts {
+    fn add_assign(&mut self, other: LocalCounts) {
+        self.known += other.known;
+        self.clamped += other.clamped;
+        self.unmeasured += other.unmeasured;
+        self.captured += other.captured;
+        self.global += other.global;
+    }
+}
+
 /// Names of a local map's planes, in [`local_map`]'s order.
 pub const LOCAL_PLANES: [&str; 12] = [
     "local.R",

@@ -424,12 +424,7 @@ pub fn local_products(
             for (c, channel) in channels.iter_mut().enumerate() {
                 if let Some(channel) = channel {
                     channel.counts = counts[c];
-                    let total = &mut summary.channels[c];
-                    total.known += counts[c].known;
-                    total.clamped += counts[c].clamped;
-                    total.unmeasured += counts[c].unmeasured;
-                    total.captured += counts[c].captured;
-                    total.global += counts[c].global;
+                    summary.channels[c] += counts[c];
                 }
             }
             let extrapolated = channels.iter().flatten().any(|c| c.entrance.extrapolated);

@@ -8,6 +8,7 @@ mod calibrate_reflectometer;
 mod devices;
 mod operator;
 mod process;
+mod process_dipole;
 mod progress;
 mod remote;
 mod sim;

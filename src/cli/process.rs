@@ -18,13 +18,11 @@ use stagehand_processing::capture_products::{
 };
 use stagehand_processing::colour_calibration::ColourSet;
 use stagehand_processing::depth_products::{DepthMethod, DepthSetup, DepthSummary, depth_products};
-use stagehand_processing::dipole_products::{
-    DipoleOptions, DipoleReference, DipoleSetup, DipoleSummary, dipole_products,
-};
+use stagehand_processing::dipole_products::DipoleSummary;
 use stagehand_processing::hdr_frame::MergeWeight;
 use stagehand_processing::laser_plane_calibration::LaserPlanesResult;
 use stagehand_processing::laser_planes::LaserPlanes;
-use stagehand_processing::local_products::{LocalSetup, LocalSummary, local_products};
+use stagehand_processing::local_products::LocalSummary;
 use stagehand_processing::mdf_merge::MergeOptions;
 use stagehand_processing::mdf_products::{MdfSetup, MdfSummary, mdf_products};
 use stagehand_processing::rectify::RectifyGrid;
@@ -41,6 +39,7 @@ use stagehand_processing::ward_fit::WardFitOptions;
 
 use super::calibrate::{processing_err, root_of, run_rig, store_err};
 use super::calibrate_reflectometer::ReflectometerRig;
+use super::process_dipole::{dipole_fits, local_inputs, local_maps};
 use crate::session::SessionError;
 
 /// The products `process` can make.
@@ -160,15 +159,15 @@ pub struct ProcessArgs {
 
 /// The calibrations `process` was given or found, decoded.
 #[derive(Default)]
-struct Calibrations {
-    response: Option<(ResponseSet, String)>,
-    colour: Option<(ColourSet, String)>,
+pub(super) struct Calibrations {
+    pub(super) response: Option<(ResponseSet, String)>,
+    pub(super) colour: Option<(ColourSet, String)>,
     /// The response calibration the colour calibration was made through.
-    colour_response: String,
-    geometry: Option<(BTreeMap<String, CameraGeometry>, String)>,
-    laser_planes: Option<(LaserPlanes, String)>,
+    pub(super) colour_response: String,
+    pub(super) geometry: Option<(BTreeMap<String, CameraGeometry>, String)>,
+    pub(super) laser_planes: Option<(LaserPlanes, String)>,
     /// The sources per camera, the id, and the response calibration it was made through.
-    reflectometer: Option<(BTreeMap<String, SourceCalibration>, String, String)>,
+    pub(super) reflectometer: Option<(BTreeMap<String, SourceCalibration>, String, String)>,
 }
 
 /// Loads calibrations `ids`, at most one of each kind.
@@ -526,7 +525,7 @@ fn reflectometer_maps(
 
 /// The cameras' geometry and its id: the geometry calibration's, else the rig file's
 /// ([`NOMINAL`]), for the cameras asked for.
-fn cameras_geometry(
+pub(super) fn cameras_geometry(
     args: &ProcessArgs,
     found: &Calibrations,
     rig: &stagehand_devices::rig::RigSpec,
@@ -545,131 +544,11 @@ fn cameras_geometry(
     ))
 }
 
-/// The dipole fits of a quasi-homogeneous run.
-fn dipole_fits(
-    args: &ProcessArgs,
-    found: &Calibrations,
-    rig: &stagehand_devices::rig::RigSpec,
-    root: &std::path::Path,
-    turntable: Option<&str>,
-    store: &mut ProductStore,
-    software: &str,
-) -> Result<DipoleSummary, SessionError> {
-    let (responses, response_id) = found.response.as_ref().ok_or_else(|| {
-        SessionError::Io(
-            "dipole needs a response calibration: --calibration response-… (make one with `stagehand calibrate response`)".into(),
-        )
-    })?;
-    let albedo = match args.reference_albedo.as_slice() {
-        [a] => [*a; 3],
-        [r, g, b] => [*r, *g, *b],
-        [] => {
-            return Err(SessionError::Io(format!(
-                "dipole needs the albedo of the reference `{}` the laser's power is measured on: --reference-albedo A (or R,G,B)",
-                args.reference_fixture
-            )));
-        }
-        other => {
-            return Err(SessionError::Io(format!(
-                "--reference-albedo takes 1 or 3 values, got {}",
-                other.len()
-            )));
-        }
-    };
-    if let Some(bad) = albedo.iter().find(|a| !(**a > 0.0 && **a <= 1.0)) {
-        return Err(SessionError::Io(format!(
-            "--reference-albedo {bad}: an albedo is above 0 and at most 1"
-        )));
-    }
-    let (geometry, geometry_id) = cameras_geometry(args, found, rig, root)?;
-    let light_arc = rig.axis_with_role(AxisRole::LightArc).map(|a| a.id.clone());
-    let setup = DipoleSetup {
-        response: (responses, response_id),
-        geometry: (&geometry, &geometry_id),
-        turntable_axis: turntable,
-        light_arc_axis: light_arc.as_deref(),
-        reference: DipoleReference {
-            fixture: &args.reference_fixture,
-            albedo,
-        },
-        options: DipoleOptions {
-            eta: args.eta,
-            ..DipoleOptions::default()
-        },
-        cameras: (!args.cameras.is_empty()).then_some(args.cameras.as_slice()),
-        exit: args.products.contains(&Product::Exit) || args.products.contains(&Product::Local),
-        entrance: args.products.contains(&Product::Entrance)
-            || args.products.contains(&Product::Local),
-    };
-    let made = with_progress("colours", |progress| {
-        dipole_products(store, setup, software, progress)
-    })
-    .map_err(processing_err)?;
-    Ok(made)
-}
-
-/// The colour calibration `local` needs, checked before the dipole pass runs: it must exist
-/// and be made through the response calibration the captures are merged with.
-fn local_inputs(found: &Calibrations) -> Result<(&ColourSet, &str), SessionError> {
-    let (colour, colour_id) = found.colour.as_ref().ok_or_else(|| {
-        SessionError::Io(
-            "local needs a colour calibration of the lamps (S per camera and lamp, which turns a halogen capture into reflectance): --calibration colour-… (make one with `stagehand calibrate colour` on a run of sequences/calibration_colorchecker.rhai)".into(),
-        )
-    })?;
-    if let Some((_, response_id)) = &found.response
-        && found.colour_response != *response_id
-    {
-        return Err(SessionError::Io(format!(
-            "--calibration {colour_id} was made through response calibration {}, not {response_id}: its scales are in that calibration's units; process with --calibration {}",
-            found.colour_response, found.colour_response
-        )));
-    }
-    Ok((colour, colour_id))
-}
-
-/// The local reflectance function of a quasi-homogeneous run's step 3, after its dipole pass.
-fn local_maps(
-    args: &ProcessArgs,
-    found: &Calibrations,
-    rig: &stagehand_devices::rig::RigSpec,
-    root: &std::path::Path,
-    turntable: Option<&str>,
-    store: &mut ProductStore,
-    software: &str,
-) -> Result<LocalSummary, SessionError> {
-    let (colour, colour_id) = local_inputs(found)?;
-    let (responses, response_id) = found.response.as_ref().ok_or_else(|| {
-        SessionError::Io(
-            "local needs a response calibration: --calibration response-… (make one with `stagehand calibrate response`)".into(),
-        )
-    })?;
-    let (geometry, geometry_id) = cameras_geometry(args, found, rig, root)?;
-    let light_arc = rig.axis_with_role(AxisRole::LightArc).map(|a| a.id.clone());
-    let lamps: BTreeMap<String, f64> = rig
-        .lamps
-        .iter()
-        .filter(|l| l.kind == LampKind::Halogen)
-        .map(|l| (l.id.clone(), l.elevation_deg))
-        .collect();
-    let setup = LocalSetup {
-        response: (responses, response_id),
-        colour: (colour, colour_id),
-        geometry: (&geometry, &geometry_id),
-        turntable_axis: turntable,
-        light_arc_axis: light_arc.as_deref(),
-        lamps: &lamps,
-        cameras: (!args.cameras.is_empty()).then_some(args.cameras.as_slice()),
-    };
-    let made = with_progress("views", |progress| {
-        local_products(store, setup, software, progress)
-    })
-    .map_err(processing_err)?;
-    Ok(made)
-}
-
-/// Runs `work` with a progress bar on stderr counting `what` (`work` reports done and total),
 /// cleared when the work ends, however it ends.
-fn with_progress<T>(what: &str, work: impl FnOnce(&mut dyn FnMut(usize, usize)) -> T) -> T {
+pub(super) fn with_progress<T>(
+    what: &str,
+    work: impl FnOnce(&mut dyn FnMut(usize, usize)) -> T,
+) -> T {
     let bar = progress_bar(what);
     let made = work(&mut |done, total| {
         bar.set_length(total as u64);
