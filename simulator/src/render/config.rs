@@ -39,6 +39,23 @@ pub struct SimSpec {
     /// recorded in `as_built.json` beside each run for evaluation.
     #[serde(default)]
     pub as_built: Option<crate::as_built::AsBuiltSpec>,
+    /// What the simulated cameras deliver: `"render"` (the World rendered, the default) or
+    /// `"pattern"` (a test pattern that changes with every trigger, made without rendering, as
+    /// Micro-Manager's DemoCamera does): for measuring the frame pipeline at the rig's full
+    /// rate, where rendering would be the bottleneck.
+    #[serde(default)]
+    pub frames: FrameSource,
+}
+
+/// What a simulated camera's frame shows (`sim.frames`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FrameSource {
+    /// The World rendered as the camera sees it.
+    #[default]
+    Render,
+    /// [`crate::sim_devices::test_pattern`]: no rendering, no ground truth.
+    Pattern,
 }
 
 /// The kinds of ground-truth plane, in the order they are written.
@@ -104,6 +121,7 @@ impl Default for SimSpec {
             knobs: SimKnobs::default(),
             ground_truth: GroundTruthPlanes::default(),
             as_built: None,
+            frames: FrameSource::default(),
         }
     }
 }
@@ -174,6 +192,12 @@ impl SimSpec {
                     "sim.ground_truth names `{bad}`; use true, false or a list of {}",
                     GROUND_TRUTH_KINDS.join(", ")
                 ),
+            ));
+        }
+        if self.frames == FrameSource::Pattern && self.ground_truth.any() {
+            return Err((
+                key("sim", "frames"),
+                "sim.frames = \"pattern\" renders nothing, so it has no ground truth; set sim.ground_truth = false or sim.frames = \"render\"".into(),
             ));
         }
         if Quality::parse(&self.quality).is_err() {
@@ -319,6 +343,28 @@ mod tests {
             m.contains("`albedo`") && m.contains("depth, normal, radiance, material"),
             "{m}"
         );
+    }
+
+    #[test]
+    fn the_frame_source_is_render_or_pattern_and_a_pattern_has_no_ground_truth() {
+        let with =
+            |lines: &str| BUILTIN_LIGHTSTAGE.replacen("[sim]\n", &format!("[sim]\n{lines}\n"), 1);
+        assert_eq!(
+            check_rig(&with("frames = \"pattern\""), "x.toml").map(|s| s.frames),
+            Ok(FrameSource::Pattern)
+        );
+        assert_eq!(
+            check_rig(BUILTIN_LIGHTSTAGE, "x.toml").map(|s| s.frames),
+            Ok(FrameSource::Render)
+        );
+        let text = with("frames = \"noise\"");
+        let (l, _, m) = err(&text);
+        assert_eq!(l, line_of(&text, "noise"));
+        assert!(m.contains("render") && m.contains("pattern"), "{m}");
+        let text = with("frames = \"pattern\"\nground_truth = true");
+        let (l, _, m) = err(&text);
+        assert_eq!(l, line_of(&text, "frames ="));
+        assert!(m.contains("no ground truth"), "{m}");
     }
 
     #[test]

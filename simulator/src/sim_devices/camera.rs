@@ -12,6 +12,8 @@ use stagehand_devices::rig::CameraSpec;
 use stagehand_devices::{DeviceError, DeviceErrorKind};
 use tokio::sync::broadcast;
 
+use crate::render::config::FrameSource;
+use crate::sim_devices::test_pattern;
 use crate::world::{Pulse, World};
 use crate::world_snapshot::WorldSnapshot;
 
@@ -172,6 +174,32 @@ impl CameraDriver for SimCamera {
         clock.sleep_s(end - clock.now_s()).await;
         let snapshot = self.world.snapshot_at(start);
         let compute = self.compute.clone();
+        if self.world.sim().frames == FrameSource::Pattern {
+            let seed = self.noise_seed(0);
+            let pixels = test_pattern(
+                self.spec.width,
+                self.spec.height,
+                self.spec.bit_depth,
+                seed,
+                trigger_id,
+            );
+            clock
+                .sleep_s(end + self.spec.readout_s() - clock.now_s())
+                .await;
+            return Ok(Frame {
+                camera: id,
+                trigger_id,
+                width: self.spec.width,
+                height: self.spec.height,
+                bit_depth: self.spec.bit_depth,
+                pixels,
+                exposure_s: self.exposure_s,
+                gain: self.gain,
+                rig_time_s: start,
+                notes: serde_json::json!({ "source": "test pattern" }),
+                ground_truth: None,
+            });
+        }
         let (rendered, ground_truth) = off_the_async_workers(|| {
             compute.measure(|| {
                 let rendered = self

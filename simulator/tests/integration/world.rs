@@ -110,3 +110,47 @@ fn lamp_warm_up_reaches_exactly_full_output() {
         last = f;
     }
 }
+
+#[tokio::test(start_paused = true)]
+async fn a_pattern_camera_delivers_a_new_test_pattern_per_trigger_without_rendering() {
+    use stagehand_devices::camera::CameraDriver;
+    use stagehand_devices::trigger::TriggerDriver;
+    use stagehand_simulator::sim_devices::{SimCamera, SimTrigger};
+    let _turn = crate::grbl_peer::alongside();
+    let text = BUILTIN_LIGHTSTAGE
+        .replace("width = 1024", "width = 16")
+        .replace("height = 768", "height = 12")
+        .replace("bit_depth = 12", "bit_depth = 16")
+        .replacen("[sim]\n", "[sim]\nframes = \"pattern\"\n", 1);
+    let w = World::new(
+        Arc::new(parse_rig(&text, "lightstage.toml").unwrap()),
+        RigClock::default(),
+        1,
+    )
+    .unwrap();
+    let spec = w.rig().cameras[0].clone();
+    let mut cam = SimCamera::new(spec.clone(), w.clone());
+    let mut trigger = SimTrigger::new(w.clone());
+    cam.configure(0.001, 1.0).await.unwrap();
+    cam.arm().await.unwrap();
+    let mut frames = Vec::new();
+    for id in [1001, 2001] {
+        let t0 = w.clock().now_s();
+        trigger.fire(id).await.unwrap();
+        let frame = cam.next_frame().await.unwrap();
+        // Exposure and readout are kept as for a rendered frame.
+        let took = w.clock().now_s() - t0;
+        // (The virtual clock's timers tick in milliseconds.)
+        assert!((took - (0.001 + spec.readout_s())).abs() < 2e-3, "{took}");
+        assert_eq!(frame.trigger_id, id);
+        assert_eq!(frame.notes["source"], "test pattern");
+        assert!(frame.ground_truth.is_none());
+        assert_eq!(frame.pixels.len(), 16 * 12 * 3);
+        frames.push(frame.pixels);
+    }
+    assert_ne!(frames[0], frames[1], "every trigger shows a new frame");
+    assert!(
+        frames[0].iter().any(|v| *v > u16::MAX / 2),
+        "the range is used"
+    );
+}
