@@ -90,4 +90,4 @@ pub use query::{
     FramePage, FrameQuery, JournalStep, JournalSummary, RecordedFile, RecordedKind, RunRow,
 };
 pub use reader::{RunReader, read_manifest};
-pub use run_store::RunStore;
+pub use run_store::{RawCompression, RunStore};

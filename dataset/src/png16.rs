@@ -76,6 +76,38 @@ pub fn encode_png16(
     sensor_bits: u8,
     metadata_json: &str,
 ) -> Result<Vec<u8>> {
+    encode_png16_with(
+        name,
+        width,
+        height,
+        pixels,
+        sensor_bits,
+        metadata_json,
+        Deflate::Fastest,
+    )
+}
+
+/// How a raw frame's PNG compresses its image data. Both are plain PNG that every reader
+/// opens; they differ only in size and in the CPU they take.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Deflate {
+    /// The fastest deflate with the Up filter: about 55 % of the raw size on sensor frames.
+    Fastest,
+    /// Stored deflate blocks, no filter: the raw size, at about half the CPU of `Fastest`
+    /// (`cargo bench --bench frame_formats`). The writer uses it when it falls behind.
+    Stored,
+}
+
+/// [`encode_png16`] with the compression given.
+pub fn encode_png16_with(
+    name: &str,
+    width: u32,
+    height: u32,
+    pixels: &[u16],
+    sensor_bits: u8,
+    metadata_json: &str,
+    deflate: Deflate,
+) -> Result<Vec<u8>> {
     encode(
         name,
         width,
@@ -83,6 +115,7 @@ pub fn encode_png16(
         pixels,
         Some(sensor_bits),
         metadata_json,
+        deflate,
     )
 }
 
@@ -95,7 +128,15 @@ pub fn encode_png16_unshifted(
     pixels: &[u16],
     metadata_json: &str,
 ) -> Result<Vec<u8>> {
-    encode(name, width, height, pixels, None, metadata_json)
+    encode(
+        name,
+        width,
+        height,
+        pixels,
+        None,
+        metadata_json,
+        Deflate::Fastest,
+    )
 }
 
 /// [`encode_png16`]; with `sensor_bits` `None`, the layout before MSB alignment (DN unshifted,
@@ -107,6 +148,7 @@ fn encode(
     pixels: &[u16],
     sensor_bits: Option<u8>,
     metadata_json: &str,
+    deflate: Deflate,
 ) -> Result<Vec<u8>> {
     let samples = rgb_samples(name, width, height)?;
     if pixels.len() != samples {
@@ -135,32 +177,55 @@ fn encode(
         });
     }
     // Checked first and converted in a loop without a branch: it runs in vector lanes.
-    let mut data = vec![0u8; samples * 2];
-    for (out, &v) in data.chunks_exact_mut(2).zip(pixels) {
-        out.copy_from_slice(&(v << shift).to_be_bytes());
-    }
-    let mut out = Vec::with_capacity(samples + 4096);
-    let mut encoder = png::Encoder::new(&mut out, width, height);
-    encoder.set_color(png::ColorType::Rgb);
-    encoder.set_depth(png::BitDepth::Sixteen);
-    // The fastest deflate with the Up filter: on sensor frames it compresses within a few per
-    // cent of `Fast` with its adaptive filter, in about half the CPU
-    // (`cargo bench --bench frame_formats`), and the encoder is the frame pipeline's limit.
-    encoder.set_compression(png::Compression::Fastest);
-    encoder.set_filter(png::Filter::Up);
-    encoder
-        .add_itxt_chunk(ITXT_KEYWORD.to_string(), metadata_json.to_string())
-        .map_err(png_err)?;
-    let mut writer = encoder.write_header().map_err(png_err)?;
-    if let Some(bits) = sensor_bits {
-        // sBIT goes before the image data (PNG spec 11.3.3.4); the crate parses it on read.
-        writer
-            .write_chunk(png::chunk::sBIT, &[bits; 3])
+    // The big-endian samples in a buffer kept per thread: a fresh one would page-fault its
+    // 4.7 MB in on every full-size frame.
+    SCRATCH.with_borrow_mut(|data| {
+        // Every byte is overwritten below: no need to zero a buffer of the right size.
+        if data.len() != samples * 2 {
+            data.clear();
+            data.resize(samples * 2, 0);
+        }
+        for (out, &v) in data.chunks_exact_mut(2).zip(pixels) {
+            out.copy_from_slice(&(v << shift).to_be_bytes());
+        }
+        // Room for the stored form (the raw bytes, a filter byte per row and block headers),
+        // so the output never moves while it grows.
+        let rows = height as usize;
+        let mut out = Vec::with_capacity(samples * 2 + rows + samples / 8192 + 4096);
+        let mut encoder = png::Encoder::new(&mut out, width, height);
+        encoder.set_color(png::ColorType::Rgb);
+        encoder.set_depth(png::BitDepth::Sixteen);
+        match deflate {
+            // On sensor frames the fastest deflate with the Up filter compresses within a few
+            // per cent of `Fast` with its adaptive filter, in about half the CPU.
+            Deflate::Fastest => {
+                encoder.set_compression(png::Compression::Fastest);
+                encoder.set_filter(png::Filter::Up);
+            }
+            Deflate::Stored => {
+                encoder.set_compression(png::Compression::NoCompression);
+                encoder.set_filter(png::Filter::NoFilter);
+            }
+        }
+        encoder
+            .add_itxt_chunk(ITXT_KEYWORD.to_string(), metadata_json.to_string())
             .map_err(png_err)?;
-    }
-    writer.write_image_data(&data).map_err(png_err)?;
-    writer.finish().map_err(png_err)?;
-    Ok(out)
+        let mut writer = encoder.write_header().map_err(png_err)?;
+        if let Some(bits) = sensor_bits {
+            // sBIT goes before the image data (PNG spec 11.3.3.4); the crate parses it on read.
+            writer
+                .write_chunk(png::chunk::sBIT, &[bits; 3])
+                .map_err(png_err)?;
+        }
+        writer.write_image_data(data).map_err(png_err)?;
+        writer.finish().map_err(png_err)?;
+        Ok(out)
+    })
+}
+
+thread_local! {
+    /// [`encode`]'s byte buffer, reused by every frame a thread encodes.
+    static SCRATCH: std::cell::RefCell<Vec<u8>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// Decodes a 16-bit RGB PNG written by [`encode_png16`] (or by a stagehand before MSB

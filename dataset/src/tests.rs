@@ -394,6 +394,60 @@ fn png_round_trip_and_identical_bytes_without_wall_time() -> TestResult {
     Ok(())
 }
 
+/// A writer behind the cameras stores every other raw frame uncompressed: both kinds are PNG
+/// that decode to the same DN and are indexed with their own size and hash.
+#[test]
+fn half_stored_frames_decode_alike() -> TestResult {
+    let tmp = tempfile::tempdir()?;
+    let mut store = RunStore::create(tmp.path(), manifest(), &plan())?;
+    let dir = store.dir().to_path_buf();
+    // Frames large enough for deflate to pay: a smooth 64×48 gradient.
+    let mut frames = step1_frames();
+    for f in &mut frames {
+        if let FramePixels::Raw(px) = &mut f.pixels {
+            (f.meta.width, f.meta.height) = (64, 48);
+            *px = (0..64 * 48 * 3).map(|i| (i / 3 % 64 * 16) as u16).collect();
+        }
+    }
+    let raw: Vec<(String, Option<usize>, Vec<u16>)> = frames
+        .iter()
+        .filter_map(|f| match &f.pixels {
+            FramePixels::Raw(px) => {
+                Some((f.meta.camera.clone(), f.meta.exposure_index, px.clone()))
+            }
+            FramePixels::Hdr(_) => None,
+        })
+        .collect();
+    store.commit_steps_with(vec![(record(1, 9.5), frames)], RawCompression::HalfStored)?;
+    let (mut stored, mut deflated) = (0, 0);
+    for row in store.frames(Some(1))? {
+        let bytes = fs::read(dir.join(&row.path))?;
+        assert_eq!(row.sha256, sha256_hex(&bytes));
+        assert_eq!(row.size_bytes, bytes.len() as u64);
+        if row.meta.kind != FrameKind::Raw {
+            continue;
+        }
+        let (_, _, pixels) = raw
+            .iter()
+            .find(|(c, e, _)| *c == row.meta.camera && *e == row.meta.exposure_index)
+            .ok_or("a row for no frame")?;
+        assert_eq!(
+            &decode_png16(&row.path, &bytes)?.pixels,
+            pixels,
+            "{}",
+            row.path
+        );
+        // Stored: every sample's two bytes and more; deflated: far less.
+        if bytes.len() > pixels.len() * 2 {
+            stored += 1;
+        } else {
+            deflated += 1;
+        }
+    }
+    assert_eq!((stored, deflated), (2, 2));
+    Ok(())
+}
+
 /// A dataset written before MSB alignment and ground truth (index schema 1, PNGs with the DN
 /// unshifted and no sBIT) verifies clean, opens, is upgraded to schema 3 with shift 0 in every
 /// row, and reads the same DN.

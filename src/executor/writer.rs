@@ -11,7 +11,8 @@ use super::RunError;
 use super::capture::StepFrames;
 use super::events::Event;
 use crate::storage::{
-    FramePixels, FrameToWrite, RunStatus, RunStore, StepRecord, StorageError, merge_bracket,
+    FramePixels, FrameToWrite, RawCompression, RunStatus, RunStore, StepRecord, StorageError,
+    merge_bracket,
 };
 use crate::units::human_bytes;
 
@@ -58,14 +59,12 @@ impl WriterHandle {
         let (tx, rx) = mpsc::channel(QUEUE_STEPS);
         let failed = Arc::new(Mutex::new(None));
         let flag = failed.clone();
+        let budget = Arc::new(Semaphore::new(BUDGET_MIB as usize));
+        let backlog = budget.clone();
         std::thread::Builder::new()
             .name("stagehand-writer".into())
-            .spawn(move || writer_loop(store, rx, events, flag, reserve_bytes))?;
-        Ok(WriterHandle {
-            tx,
-            failed,
-            budget: Arc::new(Semaphore::new(BUDGET_MIB as usize)),
-        })
+            .spawn(move || writer_loop(store, rx, events, flag, reserve_bytes, backlog))?;
+        Ok(WriterHandle { tx, failed, budget })
     }
 
     fn failure(&self) -> Option<(usize, String)> {
@@ -170,8 +169,10 @@ fn writer_loop(
     events: broadcast::Sender<Event>,
     failed: Arc<Mutex<Option<(usize, String)>>>,
     reserve_bytes: u64,
+    budget: Arc<Semaphore>,
 ) {
     let mut frames_written = 0usize;
+    let mut compression = RawCompression::Deflate;
     let mut first_failure: Option<(usize, String)> = None;
     let mut pending: Option<Msg> = None;
     loop {
@@ -196,7 +197,21 @@ fn writer_loop(
                     continue;
                 }
                 let steps: Vec<usize> = batch.iter().map(|(r, _, _)| r.step).collect();
-                match write_batch(&mut store, batch, reserve_bytes) {
+                let chosen = compression_for(&budget);
+                if chosen != compression {
+                    tracing::info!(
+                        step = steps[0],
+                        "raw frames {}",
+                        match chosen {
+                            RawCompression::HalfStored =>
+                                "half stored uncompressed: the writer is behind the cameras",
+                            RawCompression::Deflate =>
+                                "all compressed again: the writer has caught up",
+                        }
+                    );
+                    compression = chosen;
+                }
+                match write_batch(&mut store, batch, reserve_bytes, compression) {
                     Ok(files) => {
                         frames_written += files.iter().sum::<usize>();
                         super::telemetry::frames_written(files.iter().sum());
@@ -235,12 +250,28 @@ fn writer_loop(
 /// Most steps journaled in one transaction.
 const MAX_BATCH: usize = 512;
 
+/// Frame data (MiB) in flight, this batch's included, above which raw frames are stored
+/// uncompressed: deflate takes about half the CPU of a frame's way to disk, and a writer
+/// that keeps compressing while behind the cameras would make the next capture late.
+const STORE_ABOVE_MIB: usize = BUDGET_MIB as usize / 8;
+
+/// The compression for the next batch: the fastest deflate unless the writer is behind.
+fn compression_for(budget: &Semaphore) -> RawCompression {
+    let in_flight = (BUDGET_MIB as usize).saturating_sub(budget.available_permits());
+    if in_flight > STORE_ABOVE_MIB {
+        RawCompression::HalfStored
+    } else {
+        RawCompression::Deflate
+    }
+}
+
 /// Writes a batch of steps (frames first, then one journal transaction); returns the number
 /// of files per step, or the first step that failed and why.
 fn write_batch(
     store: &mut RunStore,
     batch: Vec<(StepRecord, StepFrames, OwnedSemaphorePermit)>,
     reserve_bytes: u64,
+    compression: RawCompression,
 ) -> Result<Vec<usize>, (usize, String)> {
     let first = batch.first().map(|(r, _, _)| r.step).unwrap_or(0);
     let mut prepared = Vec::with_capacity(batch.len());
@@ -283,7 +314,7 @@ fn write_batch(
     }
     let counts = prepared.iter().map(|(_, f)| f.len()).collect();
     store
-        .commit_steps(prepared)
+        .commit_steps_with(prepared, compression)
         .map_err(|e| (first, e.to_string()))?;
     Ok(counts)
 }
@@ -324,4 +355,25 @@ fn prepare_step(frames: StepFrames) -> Result<Vec<FrameToWrite>, StorageError> {
         .collect();
     out.extend(merged);
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn raw_frames_are_half_stored_only_while_the_writer_is_behind() {
+        let budget = Semaphore::new(BUDGET_MIB as usize);
+        assert_eq!(compression_for(&budget), RawCompression::Deflate);
+        budget.forget_permits(STORE_ABOVE_MIB);
+        assert_eq!(
+            compression_for(&budget),
+            RawCompression::Deflate,
+            "at the mark"
+        );
+        budget.forget_permits(1);
+        assert_eq!(compression_for(&budget), RawCompression::HalfStored);
+        budget.add_permits(STORE_ABOVE_MIB + 1);
+        assert_eq!(compression_for(&budget), RawCompression::Deflate);
+    }
 }

@@ -172,57 +172,50 @@ impl CameraDriver for SimCamera {
         let end = start + self.exposure_s;
         self.world.begin_exposure(start, end);
         clock.sleep_s(end - clock.now_s()).await;
-        let snapshot = self.world.snapshot_at(start);
         let compute = self.compute.clone();
-        if self.world.sim().frames == FrameSource::Pattern {
+        let (pixels, notes, ground_truth) = if self.world.sim().frames == FrameSource::Pattern {
             let seed = self.noise_seed(0);
-            let pixels = test_pattern(
-                self.spec.width,
-                self.spec.height,
-                self.spec.bit_depth,
-                seed,
-                trigger_id,
-            );
-            clock
-                .sleep_s(end + self.spec.readout_s() - clock.now_s())
-                .await;
-            return Ok(Frame {
-                camera: id,
-                trigger_id,
-                width: self.spec.width,
-                height: self.spec.height,
-                bit_depth: self.spec.bit_depth,
-                pixels,
-                exposure_s: self.exposure_s,
-                gain: self.gain,
-                rig_time_s: start,
-                notes: serde_json::json!({ "source": "test pattern" }),
-                ground_truth: None,
+            let pixels = off_the_async_workers(|| {
+                test_pattern(
+                    self.spec.width,
+                    self.spec.height,
+                    self.spec.bit_depth,
+                    seed,
+                    trigger_id,
+                )
             });
-        }
-        let (rendered, ground_truth) = off_the_async_workers(|| {
-            compute.measure(|| {
-                let rendered = self
-                    .world
-                    .renderer()
-                    .render(
-                        &snapshot,
-                        &id,
-                        self.exposure_s,
-                        self.gain,
-                        self.noise_seed(trigger_id),
-                    )
-                    .map_err(|e| {
-                        DeviceError::new(
-                            id.clone(),
-                            DeviceErrorKind::Other {
-                                message: e.to_string(),
-                            },
+            (
+                pixels,
+                serde_json::json!({ "source": "test pattern" }),
+                None,
+            )
+        } else {
+            let snapshot = self.world.snapshot_at(start);
+            let (rendered, ground_truth) = off_the_async_workers(|| {
+                compute.measure(|| {
+                    let rendered = self
+                        .world
+                        .renderer()
+                        .render(
+                            &snapshot,
+                            &id,
+                            self.exposure_s,
+                            self.gain,
+                            self.noise_seed(trigger_id),
                         )
-                    })?;
-                Ok::<_, DeviceError>((rendered, self.ground_truth(&snapshot)?))
-            })
-        })?;
+                        .map_err(|e| {
+                            DeviceError::new(
+                                id.clone(),
+                                DeviceErrorKind::Other {
+                                    message: e.to_string(),
+                                },
+                            )
+                        })?;
+                    Ok::<_, DeviceError>((rendered, self.ground_truth(&snapshot)?))
+                })
+            })?;
+            (rendered.pixels, rendered.notes, ground_truth)
+        };
         clock
             .sleep_s(end + self.spec.readout_s() - clock.now_s())
             .await;
@@ -232,11 +225,11 @@ impl CameraDriver for SimCamera {
             width: self.spec.width,
             height: self.spec.height,
             bit_depth: self.spec.bit_depth,
-            pixels: rendered.pixels,
+            pixels,
             exposure_s: self.exposure_s,
             gain: self.gain,
             rig_time_s: start,
-            notes: rendered.notes,
+            notes,
             ground_truth,
         })
     }

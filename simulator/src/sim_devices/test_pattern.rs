@@ -19,30 +19,37 @@ pub fn test_pattern(
     let max = (1u32 << bit_depth.clamp(1, 16)) - 1;
     let noise_bits = NOISE_BITS.min(u32::from(bit_depth.clamp(1, 16)));
     let noise_mask = (1u64 << noise_bits) - 1;
-    let scale = u64::from((max >> noise_bits).max(1));
+    let scale = (max >> noise_bits).max(1);
     // The grating's period (a power of two), as a table of its triangle wave from 0 to
-    // `scale`, already shifted above the noise bits; and where the trigger moved it.
+    // `scale`, already shifted above the noise bits (so base | noise stays within `max`);
+    // and where the trigger moved it.
     const PERIOD: usize = 256;
-    let wave: Vec<u64> = (0..PERIOD)
+    let wave: Vec<u16> = (0..PERIOD)
         .map(|t| {
-            let ramp = t.min(PERIOD - t) as u64;
-            (ramp * scale / (PERIOD as u64 / 2)) << noise_bits
+            let ramp = t.min(PERIOD - t) as u32;
+            ((ramp * scale / (PERIOD as u32 / 2)) << noise_bits).min(max) as u16
         })
         .collect();
     let phase = (trigger_id.wrapping_mul(7).wrapping_add(seed) % PERIOD as u64) as usize;
     let mut out = vec![0u16; width as usize * height as usize * 3];
     // xorshift64 must not start at 0.
     let mut state = (trigger_id.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ seed) | 1;
+    let per_step = (64 / noise_bits) as usize;
     for (y, row) in out.chunks_exact_mut(width.max(1) as usize * 3).enumerate() {
+        // The grating: red and green at the wave, blue at half of it.
         for (x, rgb) in row.chunks_exact_mut(3).enumerate() {
             let base = wave[(x + y + phase) % PERIOD];
-            // xorshift64: three samples of noise from one step.
+            rgb.copy_from_slice(&[base, base, base >> 1]);
+        }
+        // The noise in the low bits: one xorshift64 step gives `per_step` samples of it.
+        for chunk in row.chunks_mut(per_step) {
             state ^= state << 13;
             state ^= state >> 7;
             state ^= state << 17;
-            for (c, v) in rgb.iter_mut().enumerate() {
-                let value = (base | (state >> (16 * c)) & noise_mask) >> (c / 2);
-                *v = value.min(u64::from(max)) as u16;
+            let mut bits = state;
+            for v in chunk {
+                *v |= (bits & noise_mask) as u16;
+                bits >>= noise_bits;
             }
         }
     }
