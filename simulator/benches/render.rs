@@ -1,7 +1,9 @@
 //! Renderer throughput: frames per second for a full 8-camera step of the built-in light stage
 //! (1024×768 cameras), as the acquisition loop renders it — one `render` call per camera, the
 //! 8 cameras concurrently on a rayon pool — for each quality preset, for the `bumps` sample lit
-//! by one lamp (lamp1 at 10°, so shadows are on) and scanned by the laser (lamps off).
+//! by one lamp (lamp1 at 10°, so shadows are on) and scanned by the laser (lamps off), each
+//! from a new view every step; and, at one view, a laser sweep and a lamp sequence (only the
+//! light changes: what depends on the geometry alone is reused).
 //!
 //! Every preset runs in a fresh process (this binary re-executes itself with
 //! `STAGEHAND_RENDER_BENCH_CHILD=<preset>`), so the memory peak (`VmHWM` from
@@ -14,7 +16,8 @@
 //! Run: `cargo bench -p stagehand-simulator --bench render` or `bench/render.sh`. Subsets:
 //!
 //! - `STAGEHAND_RENDER_BENCH=preview,standard` — presets (default: all three);
-//! - `STAGEHAND_RENDER_BENCH_SCENES=lamp` — `lamp` and/or `laser` (default: both);
+//! - `STAGEHAND_RENDER_BENCH_SCENES=lamp` — any of `lamp`, `laser`, `sweep`, `lamps`
+//!   (default: all);
 //! - `STAGEHAND_RENDER_BENCH_THREADS=2` — pool sizes (default: `1,2`);
 //! - `STAGEHAND_RENDER_BENCH_REPS=3` — timed steps per row (default: 5 preview, 3 standard,
 //!   1 reference).
@@ -158,24 +161,38 @@ fn rig(preset: &str) -> Result<RigSpec, Box<dyn std::error::Error>> {
     Ok(rig)
 }
 
-/// The world for one step: `scene` is `lamp` (lamp1 at full output) or `laser` (lamps off,
-/// the 650 nm sheet on), with the turntable at `turntable_deg`.
-fn world(scene: &str, turntable_deg: f64) -> WorldSnapshot {
-    let lamp = scene == "lamp";
+/// Scenes measured: a new view per step (`lamp`, `laser`: the turntable turns 15° between
+/// steps) or a sequence at one view (`sweep`: the laser tilts by 0.05° a step; `lamps`: one
+/// lamp after another), where only the light changes.
+const SCENES: [&str; 4] = ["lamp", "laser", "sweep", "lamps"];
+
+/// The world for step `rep` (0 = the untimed warm-up) of `scene`.
+fn world(scene: &str, rep: usize) -> WorldSnapshot {
+    let new_view = matches!(scene, "lamp" | "laser");
+    let turntable_deg = if new_view {
+        TURNTABLE_STEP_DEG * rep as f64
+    } else {
+        0.0
+    };
+    let lamp = match scene {
+        "lamp" => Some("lamp1".to_string()),
+        "lamps" => Some(format!("lamp{}", rep % 8 + 1)),
+        _ => None,
+    };
     WorldSnapshot {
         rig_time_s: 0.0,
         axes: BTreeMap::from([
             ("turntable".to_string(), turntable_deg),
             ("light_arc".to_string(), 60.0),
         ]),
-        lamps: if lamp {
-            BTreeMap::from([("lamp1".to_string(), 1.0)])
-        } else {
-            BTreeMap::new()
-        },
-        laser: (!lamp).then_some(LaserBeam {
+        lamps: lamp.iter().map(|l| (l.clone(), 1.0)).collect(),
+        laser: lamp.is_none().then_some(LaserBeam {
             colour_nm: 650,
-            tilt_deg: 2.0,
+            tilt_deg: if scene == "sweep" {
+                2.0 - 0.05 * rep as f64
+            } else {
+                2.0
+            },
             mount_elevation_deg: 45.0,
         }),
         cart_mm: 0.0,
@@ -203,7 +220,7 @@ fn step(
 /// Measures one preset and prints its JSON result lines.
 fn child(preset: &str) -> Result<(), Box<dyn std::error::Error>> {
     let rig = rig(preset)?;
-    let scenes = list("STAGEHAND_RENDER_BENCH_SCENES", &["lamp", "laser"]);
+    let scenes = list("STAGEHAND_RENDER_BENCH_SCENES", &SCENES);
     let threads: Vec<usize> = list("STAGEHAND_RENDER_BENCH_THREADS", &["1", "2"])
         .iter()
         .map(|s| s.parse::<usize>())
@@ -217,8 +234,8 @@ fn child(preset: &str) -> Result<(), Box<dyn std::error::Error>> {
         },
     };
     for scene in &scenes {
-        if scene != "lamp" && scene != "laser" {
-            return Err(format!("unknown scene `{scene}`; use lamp, laser").into());
+        if !SCENES.contains(&scene.as_str()) {
+            return Err(format!("unknown scene `{scene}`; use {}", SCENES.join(", ")).into());
         }
         for &n in &threads {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build()?;
@@ -226,12 +243,12 @@ fn child(preset: &str) -> Result<(), Box<dyn std::error::Error>> {
             let renderer = Renderer::new(&rig)?;
             let result = pool.install(|| -> Result<Value, String> {
                 let cold = Instant::now();
-                step(&renderer, &rig, &world(scene, 0.0), 0)?;
+                step(&renderer, &rig, &world(scene, 0), 0)?;
                 let cold_s = cold.elapsed().as_secs_f64();
                 let mut times = Vec::with_capacity(reps);
                 let cpu0 = cpu_s();
                 for rep in 0..reps {
-                    let w = world(scene, TURNTABLE_STEP_DEG * (rep + 1) as f64);
+                    let w = world(scene, rep + 1);
                     let t = Instant::now();
                     step(&renderer, &rig, &w, rep as u64 + 1)?;
                     times.push(t.elapsed().as_secs_f64());

@@ -110,6 +110,17 @@ impl LaserSheet {
         (p - self.origin).dot(self.normal)
     }
 
+    /// How far from the sheet (in [`Self::distance`]) the sheet can still light a pixel
+    /// footprint at `p`, seen from `eye` with samples `angle` radians apart, on a surface
+    /// whose normal makes cosine `cos_view` with the view: three half-widths plus twice the
+    /// footprint. The cosine counts as at least 0.05, so `cos_view = 0` gives the widest reach
+    /// of any surface at `p`.
+    #[inline]
+    pub fn reach(&self, p: Vec3A, eye: Vec3A, angle: f32, cos_view: f32) -> f32 {
+        let t = (p - eye).length();
+        3.0 * self.half_width_mm + 2.0 * t * angle / cos_view.max(0.05)
+    }
+
     /// Irradiance at `p` on a surface square to the incoming ray (multiply by the cosine of
     /// incidence), the unit direction from `p` toward the emitter, and the distance to it.
     /// `footprint_var_mm2` is the variance of the sheet distance over the pixel footprint:

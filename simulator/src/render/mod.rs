@@ -12,7 +12,8 @@
 //! lighting), [`irradiance`] (direct light at texels), [`subsurface`] (dipole diffusion by
 //! [`fft`] convolution), [`bounce`] (interreflection between relief texels), [`texgrid`],
 //! [`surface`] and [`pass_cache`] (per-step sharing of those passes), [`pixel_samples`]
-//! (sub-pixel sampling and each camera's lens inversion, kept), [`effects`] (the plan), [`sensor`], [`quality`], [`rng`] (counter-based
+//! (sub-pixel sampling and each camera's lens inversion, kept), [`primary_hits`] (each camera
+//! view's first surfaces, kept while only the light changes), [`kept`] (their memory budget), [`effects`] (the plan), [`sensor`], [`quality`], [`rng`] (counter-based
 //! noise), [`ground_truth`] (depth, normals, material, noise-free radiance per pixel) and
 //! [`error`].
 //!
@@ -30,11 +31,13 @@ pub mod geometry;
 pub mod ground_truth;
 pub mod heightfield;
 pub mod irradiance;
+pub mod kept;
 pub mod laser;
 pub mod lights;
 pub mod material;
 pub mod pass_cache;
 pub mod pixel_samples;
+pub mod primary_hits;
 pub mod provenance;
 pub mod quality;
 pub mod rng;
@@ -83,6 +86,8 @@ pub struct Renderer {
     passes: TransportCaches,
     /// Each camera's undistorted sample points (the lens inversion), computed once.
     lens_tables: pixel_samples::LensTables,
+    /// Each camera view's primary hits, kept while only the light changes.
+    primary_hits: primary_hits::PrimaryHits,
     /// The rig as built: nominal unless `[sim.as_built]` asks for deviations.
     as_built: AsBuilt,
 }
@@ -147,6 +152,7 @@ impl Renderer {
             visibility: shadow::VisibilityCache::default(),
             passes: TransportCaches::default(),
             lens_tables: pixel_samples::LensTables::default(),
+            primary_hits: primary_hits::PrimaryHits::default(),
         })
     }
 
@@ -323,6 +329,7 @@ impl Renderer {
             knobs,
         };
         let tubes = lights::tube_bodies(&self.rig, world, to_sample);
+        let tubes_key = format!("{tubes:?}");
         // Light is integrated only with something emitting; dark frames skip tracing and the
         // shadow maps.
         let lit = integrate && (!lights.is_empty() || laser.is_some());
@@ -358,6 +365,11 @@ impl Renderer {
                 .as_ref()
                 .and_then(|s| s.as_ref().as_ref()),
         );
+        let hits = if lit {
+            self.primary_hits(&scene, &sample, &pose, lens.as_deref(), tubes_key, knobs)
+        } else {
+            None
+        };
         let width = cam.width as usize;
         let mut rgb = vec![0f32; width * cam.height as usize * 3];
         let shadow_rays: u64 = rgb
@@ -367,8 +379,14 @@ impl Renderer {
                 let mut rays = 0u64;
                 if lit {
                     for x in 0..width {
-                        let radiance =
-                            scene.pixel_with(&pose, lens.as_deref(), x as u32, y as u32, &mut rays);
+                        let radiance = scene.pixel_with(
+                            &pose,
+                            lens.as_deref(),
+                            hits.as_deref(),
+                            x as u32,
+                            y as u32,
+                            &mut rays,
+                        );
                         row[x * 3..x * 3 + 3].copy_from_slice(&radiance.to_array());
                     }
                 }
@@ -394,6 +412,29 @@ impl Renderer {
             rgb,
             notes,
         })
+    }
+
+    /// The primary hits of `pose`'s samples, kept while the view stays (`None` when too large
+    /// to keep). The key describes every input of the intersection exactly: the sample and
+    /// its relief, the pose (the turntable angle and fixture pose are in it), the sampling
+    /// and the tube's body.
+    fn primary_hits(
+        &self,
+        scene: &Scene<'_>,
+        sample: &Sample,
+        pose: &geometry::CameraPose,
+        lens: Option<&pixel_samples::LensTable>,
+        tubes: String,
+        knobs: &Knobs,
+    ) -> Option<Arc<primary_hits::HitTable>> {
+        let side = knobs.spp_side;
+        let key = format!("{}|{pose:?}|{side}|{tubes}", relief_key(sample));
+        self.primary_hits
+            .get(key, (pose.width, pose.height, side), || {
+                primary_hits::HitTable::build(pose.width, pose.height, side, |x, y, sub| {
+                    scene.locate_sample(pose, lens, x, y, sub)
+                })
+            })
     }
 
     /// Runs (or fetches, when another camera of the same step already has) the light-transport
@@ -594,5 +635,7 @@ fn check_inputs(world: &WorldSnapshot, exposure_s: f64, gain: f64) -> Result<(),
     Ok(())
 }
 
+#[cfg(test)]
+mod reuse_tests;
 #[cfg(test)]
 mod tests;

@@ -5,12 +5,12 @@
 //! [`LensTables`] keeps each camera's coordinates within a memory budget. A table holds exactly
 //! what [`CameraPose::undistorted`] returns, so frames are bit-identical with or without it.
 
-use std::collections::VecDeque;
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::Arc;
 
 use rayon::prelude::*;
 
 use super::geometry::CameraPose;
+use super::kept::Kept;
 use super::rng::{hash3, unit_f32};
 
 /// Key for sub-pixel and light-sample jitter: fixed, so only the sensor noise depends on the
@@ -132,16 +132,9 @@ impl LensTable {
     }
 }
 
-/// A table being made or made: callers for the same camera wait for the first.
-type Slot = Arc<OnceLock<Arc<LensTable>>>;
-
-/// The lens tables of one renderer's cameras, least recently used dropped first once they
-/// exceed the memory budget.
+/// The lens tables of one renderer's cameras (see [`Kept`]).
 #[derive(Debug)]
-pub struct LensTables {
-    budget_bytes: usize,
-    slots: Mutex<VecDeque<(Key, Slot)>>,
-}
+pub struct LensTables(Kept<Key, LensTable>);
 
 impl Default for LensTables {
     fn default() -> Self {
@@ -153,10 +146,7 @@ impl LensTables {
     /// Tables within `budget_bytes`; one above an eighth of it is not kept (its rays are
     /// computed per frame instead), so that eight cameras' tables fit at once.
     pub fn with_budget(budget_bytes: usize) -> LensTables {
-        LensTables {
-            budget_bytes,
-            slots: Mutex::new(VecDeque::new()),
-        }
+        LensTables(Kept::with_budget(budget_bytes))
     }
 
     /// The table of `pose` sampled side × side (with the laser footprint's neighbours when
@@ -167,42 +157,17 @@ impl LensTables {
             return None;
         }
         let key = Key::of(pose, side, differentials);
-        if key.bytes() > self.budget_bytes / 8 {
-            return None;
-        }
-        let slot = {
-            let mut slots = self
-                .slots
-                .lock()
-                .unwrap_or_else(|poisoned| poisoned.into_inner());
-            let slot = match slots.iter().position(|(k, _)| *k == key) {
-                Some(i) => slots.remove(i).map(|(_, s)| s).unwrap_or_default(),
-                None => Arc::default(),
-            };
-            slots.push_back((key, Arc::clone(&slot)));
-            while slots.len() > 1
-                && slots.iter().map(|(k, _)| k.bytes()).sum::<usize>() > self.budget_bytes
-            {
-                slots.pop_front();
-            }
-            slot
-        };
-        Some(Arc::clone(
-            slot.get_or_init(|| Arc::new(LensTable::build(pose, key))),
-        ))
+        self.0.get(key, key.bytes(), || LensTable::build(pose, key))
     }
 
     /// Tables held now.
     pub fn len(&self) -> usize {
-        self.slots
-            .lock()
-            .unwrap_or_else(|poisoned| poisoned.into_inner())
-            .len()
+        self.0.len()
     }
 
     /// True when no table is held.
     pub fn is_empty(&self) -> bool {
-        self.len() == 0
+        self.0.is_empty()
     }
 }
 

@@ -10,6 +10,7 @@ use super::geometry::CameraPose;
 use super::laser::LaserSheet;
 use super::lights::{Emitter, HALOGEN_RADIUS_MM, Light, TURNTABLE_RADIUS_MM, TubeBody};
 use super::pixel_samples::{JITTER_KEY, LensTable, sample_position};
+use super::primary_hits::{HitKind, HitTable, PackedHit, WallFacing};
 use super::quality::Knobs;
 use super::rng::{hash3, unit_f32};
 use super::sample::{Material, Sample};
@@ -37,16 +38,15 @@ pub struct Hit {
 }
 
 /// The rays through the neighbouring sub-pixel samples, for filtering sub-pixel detail.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Footprint {
+#[derive(Clone, Copy)]
+pub struct Footprint<'f> {
     /// Camera centre.
     pub origin: Vec3A,
-    /// Unit ray one sample step to the right.
-    pub dx: Vec3A,
-    /// Unit ray one sample step down.
-    pub dy: Vec3A,
     /// Angle subtended by one sample step, radians.
     pub angle: f32,
+    /// The unit rays one sample step to the right and one down: computed only for points
+    /// near the laser sheet, which alone needs them.
+    pub neighbours: &'f dyn Fn() -> (Vec3A, Vec3A),
 }
 
 /// Settings that decide how a frame is shaded.
@@ -146,6 +146,14 @@ impl<'a> Scene<'a> {
         self
     }
 
+    /// The laser sheet when it is the frame's only source (no lamp, no subsurface pass; the
+    /// bounce pass may spread its light).
+    fn laser_alone(&self) -> Option<&LaserSheet> {
+        self.laser
+            .as_ref()
+            .filter(|_| self.lights.is_empty() && self.subsurface.is_none())
+    }
+
     /// The lit lamps.
     pub fn lights(&self) -> &[Light] {
         &self.lights
@@ -158,62 +166,90 @@ impl<'a> Scene<'a> {
 
     /// The first surface along the unit ray o + t·d, or `None` for black (void, or the tube).
     pub fn intersect(&self, o: Vec3A, d: Vec3A) -> Option<Hit> {
+        self.hit_from(o, d, self.locate(o, d))
+    }
+
+    /// What the unit ray o + t·d meets first and how far along it: the part of
+    /// [`Self::intersect`] that depends on the geometry alone, kept per camera view
+    /// ([`super::primary_hits`]).
+    pub fn locate(&self, o: Vec3A, d: Vec3A) -> PackedHit {
         let mut hit = None;
         if let Some(grid) = &self.sample.grid
             && let Some(h) = grid.first_hit(o, d, 0.0, f32::INFINITY)
         {
-            let p = o + d * h.t;
-            let n = h.wall.unwrap_or_else(|| grid.normal_at(p.x, p.y));
-            let material = self.sample.material_at(p.x, p.y);
-            let on_relief = h.wall.is_none();
-            hit = Some((
-                h.t,
-                Hit {
-                    p,
-                    n,
-                    material,
-                    on_relief,
-                },
-            ));
+            let kind = match h.wall {
+                None => HitKind::Relief,
+                Some(n) if n.x < 0.0 => HitKind::Wall(WallFacing::MinusX),
+                Some(n) if n.x > 0.0 => HitKind::Wall(WallFacing::PlusX),
+                Some(n) if n.y < 0.0 => HitKind::Wall(WallFacing::MinusY),
+                Some(_) => HitKind::Wall(WallFacing::PlusY),
+            };
+            hit = Some(PackedHit {
+                t: h.t,
+                cos_view: 0.0,
+                kind,
+            });
         }
         if hit.is_none() && d.z < 0.0 {
             let t = -o.z / d.z;
             let p = o + d * t;
             if self.sample.contains(p.x, p.y) {
-                let grid = self.sample.grid.as_ref();
-                let n = grid.map_or(Vec3A::Z, |g| g.normal_at(p.x, p.y));
-                let material = self.sample.material_at(p.x, p.y);
-                hit = Some((
+                hit = Some(PackedHit {
                     t,
-                    Hit {
-                        p,
-                        n,
-                        material,
-                        on_relief: false,
-                    },
-                ));
+                    cos_view: 0.0,
+                    kind: HitKind::SamplePlane,
+                });
             } else if p.x * p.x + p.y * p.y <= TURNTABLE_RADIUS_MM * TURNTABLE_RADIUS_MM {
-                let material = TURNTABLE;
-                hit = Some((
+                hit = Some(PackedHit {
                     t,
-                    Hit {
-                        p,
-                        n: Vec3A::Z,
-                        material,
-                        on_relief: false,
-                    },
-                ));
+                    cos_view: 0.0,
+                    kind: HitKind::Turntable,
+                });
             }
         }
-        let (t, h) = hit?;
+        let Some(h) = hit else {
+            return PackedHit::NOTHING;
+        };
         if self
             .tubes
             .iter()
-            .any(|tube| tube.hit(o, d).is_some_and(|tt| tt < t))
+            .any(|tube| tube.hit(o, d).is_some_and(|tt| tt < h.t))
         {
-            return None;
+            return PackedHit::NOTHING;
         }
-        Some(h)
+        h
+    }
+
+    /// The surface point `packed` found along the unit ray o + t·d, with its normal and
+    /// material: rebuilt the same way whether `packed` was located now or kept.
+    #[inline]
+    pub fn hit_from(&self, o: Vec3A, d: Vec3A, packed: PackedHit) -> Option<Hit> {
+        let p = o + d * packed.t;
+        let grid = self.sample.grid.as_ref();
+        let on_sample = |n: Vec3A, on_relief: bool| Hit {
+            p,
+            n,
+            material: self.sample.material_at(p.x, p.y),
+            on_relief,
+        };
+        let wall = |n: Vec3A| on_sample(n, false);
+        Some(match packed.kind {
+            HitKind::Nothing => return None,
+            HitKind::Relief => on_sample(grid?.normal_at(p.x, p.y), true),
+            HitKind::Wall(WallFacing::MinusX) => wall(Vec3A::new(-1.0, 0.0, 0.0)),
+            HitKind::Wall(WallFacing::PlusX) => wall(Vec3A::new(1.0, 0.0, 0.0)),
+            HitKind::Wall(WallFacing::MinusY) => wall(Vec3A::new(0.0, -1.0, 0.0)),
+            HitKind::Wall(WallFacing::PlusY) => wall(Vec3A::new(0.0, 1.0, 0.0)),
+            HitKind::SamplePlane => {
+                on_sample(grid.map_or(Vec3A::Z, |g| g.normal_at(p.x, p.y)), false)
+            }
+            HitKind::Turntable => Hit {
+                p,
+                n: Vec3A::Z,
+                material: TURNTABLE,
+                on_relief: false,
+            },
+        })
     }
 
     /// Fraction of the light from direction `wi`, `dist` mm away, that reaches `h`: from the
@@ -303,13 +339,12 @@ impl<'a> Scene<'a> {
         sheet: &LaserSheet,
         h: &Hit,
         wo: Vec3A,
-        fp: &Footprint,
+        fp: &Footprint<'_>,
         rays: &mut u64,
     ) -> Vec3A {
         let dist = sheet.distance(h.p);
         // Cheap bound on the footprint before computing it.
-        let t = (h.p - fp.origin).length();
-        let coarse = 3.0 * sheet.half_width_mm + 2.0 * t * fp.angle / h.n.dot(wo).abs().max(0.05);
+        let coarse = sheet.reach(h.p, fp.origin, fp.angle, h.n.dot(wo).abs());
         if dist.abs() > coarse {
             return Vec3A::ZERO;
         }
@@ -322,7 +357,8 @@ impl<'a> Scene<'a> {
             let q = fp.origin + d * ((h.p - fp.origin).dot(h.n) / denom);
             (q - h.p).dot(sheet.normal).clamp(-coarse, coarse)
         };
-        let (gx, gy) = (spread(fp.dx), spread(fp.dy));
+        let (dx, dy) = (fp.neighbours)();
+        let (gx, gy) = (spread(dx), spread(dy));
         // A box of width g has variance g²/12.
         let (e, wi, r) = sheet.irradiance(h.p, (gx * gx + gy * gy) / 12.0);
         let cos_i = h.n.dot(wi);
@@ -347,7 +383,7 @@ impl<'a> Scene<'a> {
         &self,
         h: &Hit,
         wo: Vec3A,
-        footprint: &Footprint,
+        footprint: &Footprint<'_>,
         sub: u32,
         pixel: u64,
         rays: &mut u64,
@@ -420,9 +456,7 @@ impl<'a> Scene<'a> {
         if let Some(bounce) = self.indirect
             && h.on_relief
         {
-            total += h.material.albedo.max(Vec3A::ZERO)
-                * std::f32::consts::FRAC_1_PI
-                * bounce.irradiance_at(h.p.x, h.p.y);
+            total += indirect_radiance(bounce, &h.material, h.p);
         }
         if let Some(sss) = self.subsurface
             && h.material.medium != 0
@@ -434,16 +468,18 @@ impl<'a> Scene<'a> {
 
     /// Mean radiance over the pixel (x, y) of `pose`, in reference units.
     pub fn pixel(&self, pose: &CameraPose, x: u32, y: u32, rays: &mut u64) -> Vec3A {
-        self.pixel_with(pose, None, x, y, rays)
+        self.pixel_with(pose, None, None, x, y, rays)
     }
 
     /// [`Self::pixel`], reading the lens's undistorted sample points from `lens` (the camera's
-    /// table, `pixel_samples::LensTables`) when it covers this scene's sampling: the same
-    /// radiance, bit for bit, without the lens inversion.
+    /// table, `pixel_samples::LensTables`) when it covers this scene's sampling, and each
+    /// sample's primary hit from `hits` (the view's table, `primary_hits::PrimaryHits`) when
+    /// given: the same radiance, bit for bit, without the lens inversion or the march.
     pub fn pixel_with(
         &self,
         pose: &CameraPose,
         lens: Option<&LensTable>,
+        hits: Option<&HitTable>,
         x: u32,
         y: u32,
         rays: &mut u64,
@@ -452,34 +488,90 @@ impl<'a> Scene<'a> {
         let pixel = y as u64 * pose.width as u64 + x as u64;
         let step = 1.0 / side as f32;
         let lens = lens.filter(|t| t.covers(side, self.laser.is_some()));
+        let hits = hits.filter(|t| t.side() == side);
         let ray = |sub: u32, which: usize, px: f32, py: f32| match lens {
             Some(t) => pose.ray_through(t.uv(pixel, sub, which)),
             None => pose.ray(px, py),
+        };
+        let laser_alone = self.laser_alone();
+        let angle = if self.laser.is_some() {
+            step / pose.focal_px
+        } else {
+            0.0
         };
         let mut sum = Vec3A::ZERO;
         for sub in 0..side * side {
             let (px, py) = sample_position(x, y, pose.width, sub, side);
             let d = ray(sub, 0, px, py);
-            let Some(h) = self.intersect(pose.origin, d) else {
+            let packed = match hits {
+                Some(table) => table.get(x, y, sub),
+                None => self.locate(pose.origin, d),
+            };
+            // Lit by the laser alone, a point beyond the sheet's reach gets no direct light,
+            // only the bounce pass's indirect light on the relief: skip its normal and the
+            // shading (most of a sweep's frame). The reach is the one `laser_light` tests,
+            // from the view's cosine the table kept.
+            if let (Some(sheet), Some(_)) = (laser_alone, hits)
+                && packed.kind != HitKind::Nothing
+            {
+                let p = pose.origin + d * packed.t;
+                if sheet.distance(p).abs() > sheet.reach(p, pose.origin, angle, packed.cos_view) {
+                    // Where the bounce brought no light either, the sum is unchanged.
+                    if let Some(bounce) = self.indirect
+                        && packed.kind == HitKind::Relief
+                        && bounce.irradiance_at(p.x, p.y) != Vec3A::ZERO
+                    {
+                        let material = self.sample.material_at(p.x, p.y);
+                        sum += Vec3A::ZERO + indirect_radiance(bounce, &material, p);
+                    }
+                    continue;
+                }
+            }
+            let Some(h) = self.hit_from(pose.origin, d, packed) else {
                 continue;
             };
-            let footprint = if self.laser.is_some() {
-                Footprint {
-                    origin: pose.origin,
-                    dx: ray(sub, 1, px + step, py),
-                    dy: ray(sub, 2, px, py + step),
-                    angle: step / pose.focal_px,
-                }
-            } else {
-                Footprint {
-                    origin: pose.origin,
-                    dx: d,
-                    dy: d,
-                    angle: 0.0,
-                }
+            let neighbours = || (ray(sub, 1, px + step, py), ray(sub, 2, px, py + step));
+            let footprint = Footprint {
+                origin: pose.origin,
+                angle,
+                neighbours: &neighbours,
             };
             sum += self.shade(&h, -d, &footprint, sub, pixel, rays);
         }
         sum / (side * side) as f32
     }
+
+    /// The primary hit of sample `sub` of pixel (x, y) of `pose`: what a [`HitTable`] keeps.
+    pub fn locate_sample(
+        &self,
+        pose: &CameraPose,
+        lens: Option<&LensTable>,
+        x: u32,
+        y: u32,
+        sub: u32,
+    ) -> PackedHit {
+        let side = self.knobs.spp_side;
+        let pixel = y as u64 * pose.width as u64 + x as u64;
+        let d = match lens.filter(|t| t.covers(side, self.laser.is_some())) {
+            Some(t) => pose.ray_through(t.uv(pixel, sub, 0)),
+            None => {
+                let (px, py) = sample_position(x, y, pose.width, sub, side);
+                pose.ray(px, py)
+            }
+        };
+        let packed = self.locate(pose.origin, d);
+        match self.hit_from(pose.origin, d, packed) {
+            Some(h) => PackedHit {
+                cos_view: h.n.dot(-d).abs(),
+                ..packed
+            },
+            None => packed,
+        }
+    }
+}
+
+/// Radiance the bounce pass's indirect irradiance leaves at `p` on the relief: Lambert only.
+#[inline]
+fn indirect_radiance(bounce: &BounceMap, material: &Material, p: Vec3A) -> Vec3A {
+    material.albedo.max(Vec3A::ZERO) * std::f32::consts::FRAC_1_PI * bounce.irradiance_at(p.x, p.y)
 }

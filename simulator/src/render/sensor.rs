@@ -117,6 +117,8 @@ pub struct Sensor {
     key: u64,
     /// Response per channel.
     response: Response,
+    /// The response at no light per channel: what every dark pixel reads before read noise.
+    dark: [f32; 3],
 }
 
 impl Sensor {
@@ -146,12 +148,19 @@ impl Sensor {
             read_sigma_dn: (READ_NOISE_DN_12BIT * gain * max / 4095.0) as f32,
             key: hash3(seed, 0x5e45_0e00, 0, 0),
             response: Response::default(),
+            dark: [0.0; 3],
         }
+        .with_response(Response::default())
     }
 
     /// The same sensor with `response` instead of the default gentle curve.
     pub fn with_response(self, response: Response) -> Sensor {
-        Sensor { response, ..self }
+        let dark = [0, 1, 2].map(|c| response.apply(c, 0.0));
+        Sensor {
+            response,
+            dark,
+            ..self
+        }
     }
 
     /// Black level in DN.
@@ -171,6 +180,15 @@ impl Sensor {
         let shot_bits = mix64(self.key ^ pixel.wrapping_mul(0x9e37_79b9_7f4a_7c15));
         let read_bits = mix64(shot_bits ^ 0x27d4_eb2f_1656_67c5);
         let mut out = [0u16; 3];
+        if radiance == [0.0; 3] {
+            // No light (most of a laser frame): no shot noise and the response at zero,
+            // exactly what the general path computes for it.
+            for (c, o) in out.iter_mut().enumerate() {
+                let read = gaussian(read_bits >> (GAUSS_BITS * c as u32)) as f32;
+                *o = self.dn(self.dark[c], read);
+            }
+            return out;
+        }
         for (c, (o, &r)) in out.iter_mut().zip(radiance.iter()).enumerate() {
             let shift = GAUSS_BITS * c as u32;
             *o = self.digitise_with(
@@ -204,6 +222,13 @@ impl Sensor {
         } else {
             1.0 + (x - 1.0)
         };
+        self.dn(y, read)
+    }
+
+    /// The digital number for response `y` (fraction of full scale) and a standard normal
+    /// read-noise deviate.
+    #[inline]
+    fn dn(&self, y: f32, read: f32) -> u16 {
         let dn = y * self.max_dn + self.black + read * self.read_sigma_dn;
         // Round half up without a libm call: the clamped value is non-negative.
         (dn.clamp(0.0, self.max_dn) + 0.5) as u16

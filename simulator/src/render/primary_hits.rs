@@ -1,0 +1,180 @@
+//! The first surface every sample ray of a camera meets, kept while the camera and the sample
+//! stay put. During a laser sweep or a lamp sequence only the light changes, yet marching the
+//! height field for each primary ray is the largest part of a frame: a [`HitTable`] keeps, per
+//! sub-pixel sample, the distance to the hit, what was hit and the cosine of the view there
+//! (which bounds where the laser can light it), keyed on everything the
+//! intersection depends on (sample, relief, camera pose with the turntable angle and fixture
+//! pose, sampling, the tube's body). The shading point is rebuilt from the kept distance by
+//! the same code as an uncached frame, so frames are bit-identical with or without the table.
+
+use std::sync::Arc;
+
+use rayon::prelude::*;
+
+use super::kept::Kept;
+
+/// Memory the tables of one renderer may hold: the light stage's eight cameras at 1024×768 and
+/// 2×2 samples a pixel (38 MB each) fit; a table above an eighth of it is not kept.
+const BUDGET_BYTES: usize = 320 << 20;
+
+/// What a primary ray met, compactly: enough to rebuild the hit exactly.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PackedHit {
+    /// Distance along the unit ray, mm (unused for [`HitKind::Nothing`]).
+    pub t: f32,
+    /// |n·ω_o| at the hit, the cosine between the shading normal and the view: how wide a
+    /// strip the laser's pixel footprint covers there. 0 until known (a hit not yet shaded).
+    pub cos_view: f32,
+    /// What was hit.
+    pub kind: HitKind,
+}
+
+/// The surfaces a primary ray can meet.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HitKind {
+    /// Void, or the tube's body in front of everything: black.
+    Nothing,
+    /// The top of the sample's relief.
+    Relief,
+    /// A vertical side of the relief, facing −x, +x, −y or +y (the outward normal).
+    Wall(WallFacing),
+    /// The sample's plane (no relief grid hit there).
+    SamplePlane,
+    /// The turntable around the sample.
+    Turntable,
+}
+
+/// Outward normal of a relief side wall: the march only reports these four.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WallFacing {
+    /// Normal −x.
+    MinusX,
+    /// Normal +x.
+    PlusX,
+    /// Normal −y.
+    MinusY,
+    /// Normal +y.
+    PlusY,
+}
+
+impl PackedHit {
+    /// No surface.
+    pub const NOTHING: PackedHit = PackedHit {
+        t: 0.0,
+        cos_view: 0.0,
+        kind: HitKind::Nothing,
+    };
+}
+
+/// Every sample's primary hit for one camera view, `side`² samples per pixel, row-major.
+#[derive(Debug)]
+pub struct HitTable {
+    side: u32,
+    width: u32,
+    hits: Vec<PackedHit>,
+}
+
+impl HitTable {
+    /// Computes the table for a `width` × `height` camera sampled `side` × `side`, rows in
+    /// parallel; `locate(x, y, sub)` is the primary hit of sample `sub` of pixel (x, y).
+    pub fn build(
+        width: u32,
+        height: u32,
+        side: u32,
+        locate: impl Fn(u32, u32, u32) -> PackedHit + Sync,
+    ) -> HitTable {
+        let per_pixel = (side * side) as usize;
+        let row = width as usize * per_pixel;
+        let mut hits = vec![PackedHit::NOTHING; row * height as usize];
+        hits.par_chunks_mut(row.max(1))
+            .enumerate()
+            .for_each(|(y, out)| {
+                for x in 0..width {
+                    for sub in 0..side * side {
+                        out[x as usize * per_pixel + sub as usize] = locate(x, y as u32, sub);
+                    }
+                }
+            });
+        HitTable { side, width, hits }
+    }
+
+    /// The hit of sample `sub` of pixel (x, y).
+    #[inline]
+    pub fn get(&self, x: u32, y: u32, sub: u32) -> PackedHit {
+        let per_pixel = (self.side * self.side) as usize;
+        self.hits[(y as usize * self.width as usize + x as usize) * per_pixel + sub as usize]
+    }
+
+    /// Samples per pixel side this table holds.
+    pub fn side(&self) -> u32 {
+        self.side
+    }
+}
+
+/// Bytes a table of `width` × `height` pixels at `side`² samples holds.
+fn table_bytes(width: u32, height: u32, side: u32) -> usize {
+    (width as usize * height as usize)
+        .saturating_mul((side * side) as usize)
+        .saturating_mul(std::mem::size_of::<PackedHit>())
+}
+
+/// The hit tables of one renderer's camera views, keyed on an exact description of each view.
+#[derive(Debug)]
+pub struct PrimaryHits(Kept<String, HitTable>);
+
+impl Default for PrimaryHits {
+    fn default() -> Self {
+        PrimaryHits::with_budget(BUDGET_BYTES)
+    }
+}
+
+impl PrimaryHits {
+    /// Tables within `budget_bytes` (see [`Kept`]).
+    pub fn with_budget(budget_bytes: usize) -> PrimaryHits {
+        PrimaryHits(Kept::with_budget(budget_bytes))
+    }
+
+    /// The table for the view described exactly by `key`, `width` × `height` pixels sampled
+    /// `side` × `side`, built by `build` on first use; `None` when too large to keep (the
+    /// caller intersects per frame).
+    pub fn get(
+        &self,
+        key: String,
+        (width, height, side): (u32, u32, u32),
+        build: impl FnOnce() -> HitTable,
+    ) -> Option<Arc<HitTable>> {
+        self.0.get(key, table_bytes(width, height, side), build)
+    }
+
+    /// Tables held now.
+    pub fn len(&self) -> usize {
+        self.0.len()
+    }
+
+    /// True when no table is held.
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn table(w: u32, h: u32, side: u32) -> HitTable {
+        HitTable::build(w, h, side, |x, y, sub| PackedHit {
+            t: (x * 1000 + y * 10 + sub) as f32,
+            cos_view: 1.0,
+            kind: HitKind::Relief,
+        })
+    }
+
+    #[test]
+    fn a_table_holds_each_samples_hit_where_it_was_located() {
+        let t = table(5, 3, 2);
+        assert_eq!(t.side(), 2);
+        for (x, y, sub) in [(0, 0, 0), (4, 2, 3), (2, 1, 1)] {
+            assert_eq!(t.get(x, y, sub).t, (x * 1000 + y * 10 + sub) as f32);
+        }
+    }
+}
