@@ -51,6 +51,15 @@ impl<K: PartialEq, T> Kept<K, T> {
         Some(Arc::clone(slot.get_or_init(|| Arc::new(build()))))
     }
 
+    /// True when a table for `key` is held (or being built).
+    pub fn contains(&self, key: &K) -> bool {
+        self.slots
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner())
+            .iter()
+            .any(|(k, _, _)| k == key)
+    }
+
     /// Tables held now.
     pub fn len(&self) -> usize {
         self.slots

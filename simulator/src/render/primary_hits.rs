@@ -4,10 +4,12 @@
 //! sub-pixel sample, the distance to the hit, what was hit and the cosine of the view there
 //! (which bounds where the laser can light it), keyed on everything the
 //! intersection depends on (sample, relief, camera pose with the turntable angle and fixture
-//! pose, sampling, the tube's body). The shading point is rebuilt from the kept distance by
+//! pose, sampling, the tube's body), kept once a view is asked for a second time. The shading
+//! point is rebuilt from the kept distance by
 //! the same code as an uncached frame, so frames are bit-identical with or without the table.
 
-use std::sync::Arc;
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
 
@@ -118,9 +120,17 @@ fn table_bytes(width: u32, height: u32, side: u32) -> usize {
         .saturating_mul(std::mem::size_of::<PackedHit>())
 }
 
+/// Views remembered as seen once: a table is kept only for a view asked for again, so
+/// frames that each see a new view (a turntable turning every step) keep nothing.
+const SEEN_VIEWS: usize = 64;
+
 /// The hit tables of one renderer's camera views, keyed on an exact description of each view.
 #[derive(Debug)]
-pub struct PrimaryHits(Kept<String, HitTable>);
+pub struct PrimaryHits {
+    tables: Kept<String, HitTable>,
+    /// Views asked for once and not (yet) kept, most recent last.
+    seen: Mutex<VecDeque<String>>,
+}
 
 impl Default for PrimaryHits {
     fn default() -> Self {
@@ -131,29 +141,51 @@ impl Default for PrimaryHits {
 impl PrimaryHits {
     /// Tables within `budget_bytes` (see [`Kept`]).
     pub fn with_budget(budget_bytes: usize) -> PrimaryHits {
-        PrimaryHits(Kept::with_budget(budget_bytes))
+        PrimaryHits {
+            tables: Kept::with_budget(budget_bytes),
+            seen: Mutex::new(VecDeque::new()),
+        }
     }
 
     /// The table for the view described exactly by `key`, `width` × `height` pixels sampled
-    /// `side` × `side`, built by `build` on first use; `None` when too large to keep (the
-    /// caller intersects per frame).
+    /// `side` × `side`, built by `build` when the view is asked for the second time; `None`
+    /// the first time, or when too large to keep (the caller intersects per frame).
     pub fn get(
         &self,
         key: String,
         (width, height, side): (u32, u32, u32),
         build: impl FnOnce() -> HitTable,
     ) -> Option<Arc<HitTable>> {
-        self.0.get(key, table_bytes(width, height, side), build)
+        let bytes = table_bytes(width, height, side);
+        if !self.tables.contains(&key) {
+            let mut seen = self
+                .seen
+                .lock()
+                .unwrap_or_else(|poisoned| poisoned.into_inner());
+            match seen.iter().position(|k| *k == key) {
+                Some(i) => {
+                    seen.remove(i);
+                }
+                None => {
+                    seen.push_back(key);
+                    if seen.len() > SEEN_VIEWS {
+                        seen.pop_front();
+                    }
+                    return None;
+                }
+            }
+        }
+        self.tables.get(key, bytes, build)
     }
 
     /// Tables held now.
     pub fn len(&self) -> usize {
-        self.0.len()
+        self.tables.len()
     }
 
     /// True when no table is held.
     pub fn is_empty(&self) -> bool {
-        self.0.is_empty()
+        self.tables.is_empty()
     }
 }
 
@@ -176,5 +208,23 @@ mod tests {
         for (x, y, sub) in [(0, 0, 0), (4, 2, 3), (2, 1, 1)] {
             assert_eq!(t.get(x, y, sub).t, (x * 1000 + y * 10 + sub) as f32);
         }
+    }
+
+    /// A view seen once keeps nothing; asked again, its table is built and kept.
+    #[test]
+    fn a_table_is_kept_from_a_views_second_frame() {
+        let hits = PrimaryHits::default();
+        let dims = (5, 3, 1);
+        assert!(hits.get("a".into(), dims, || table(5, 3, 1)).is_none());
+        assert!(hits.get("b".into(), dims, || table(5, 3, 1)).is_none());
+        assert!(hits.is_empty());
+        let a = hits
+            .get("a".into(), dims, || table(5, 3, 1))
+            .expect("second frame");
+        let again = hits
+            .get("a".into(), dims, || panic!("built twice"))
+            .expect("kept");
+        assert!(Arc::ptr_eq(&a, &again));
+        assert_eq!(hits.len(), 1);
     }
 }
