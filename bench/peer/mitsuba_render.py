@@ -5,9 +5,14 @@ render and measuring its error against Mitsuba's own high-spp converged image.
 
 Usage: mitsuba_render.py SCENE_JSON OUT_JSON [--spp 1,2,4,...] [--reference-spp N]
                          [--repeat N] [--sampler NAME]     (sampler default: multijitter)
+                         [--glossy sum|roughplastic]
 
-SCENE_JSON is the `scene.json` stagehand's exporter wrote (meshes, albedo texture, emitters
-and camera in the renderer's sample frame, millimetres; see
+A GGX sample renders as stagehand's model (Lambert + GGX lobe with the dielectric's Fresnel,
+summed: a `blendbsdf` of `diffuse` and `roughconductor`, each doubled) unless --glossy
+roughplastic asks for Mitsuba's rough plastic (diffuse base under a Fresnel coating).
+
+SCENE_JSON is the `scene.json` stagehand's exporter wrote (meshes, albedo texture, a GGX lobe
+rendered as `roughplastic`, emitters and camera in the renderer's sample frame, millimetres; see
 tradeoff/src/mitsuba.rs). Writes OUT_JSON (times, errors, versions) and the
 converged image as `mitsuba_reference.pfm` beside it, which stagehand compares with its own
 converged reference to check that both renderers see the same scene.
@@ -55,6 +60,47 @@ def load_scene(desc, base):
     }
     sample = desc["sample"]
     turntable = desc["turntable"]
+    albedo = {
+        "type": "bitmap",
+        "filename": os.path.join(base, sample["albedo"]),
+        "filter_type": "nearest",
+        "wrap_mode": "clamp",
+        "raw": True,
+    }
+    ggx = sample.get("ggx")
+    if ggx and desc.get("glossy", "sum") == "roughplastic":
+        # Mitsuba's rough plastic: the same GGX alpha over the dielectric of that F0, its
+        # diffuse base under the coating (Fresnel-weighted, with internal reflections).
+        sample_bsdf = {
+            "type": "roughplastic",
+            "distribution": "ggx",
+            "alpha": float(ggx["alpha"]),
+            "int_ior": float(ggx["eta"]),
+            "ext_ior": 1.0,
+            "diffuse_reflectance": albedo,
+            "nonlinear": False,
+        }
+    elif ggx:
+        # stagehand's model term for term: Lambert plus a GGX microfacet lobe with the
+        # Fresnel of the dielectric of that F0, summed. Mitsuba blends (1 - w) A + w B, so
+        # each part is doubled under w = 1/2.
+        doubled = dict(albedo)
+        doubled["filename"] = os.path.join(base, sample["albedo_doubled"])
+        sample_bsdf = {
+            "type": "blendbsdf",
+            "weight": 0.5,
+            "diffuse": {"type": "diffuse", "reflectance": doubled},
+            "lobe": {
+                "type": "roughconductor",
+                "distribution": "ggx",
+                "alpha": float(ggx["alpha"]),
+                "eta": float(ggx["eta"]),
+                "k": 0.0,
+                "specular_reflectance": 2.0,
+            },
+        }
+    else:
+        sample_bsdf = {"type": "diffuse", "reflectance": albedo}
     scene = {
         "type": "scene",
         "integrator": {"type": "path", "max_depth": int(desc["max_depth"])},
@@ -62,16 +108,7 @@ def load_scene(desc, base):
         "sample": {
             "type": "ply",
             "filename": os.path.join(base, sample["mesh"]),
-            "bsdf": {
-                "type": "diffuse",
-                "reflectance": {
-                    "type": "bitmap",
-                    "filename": os.path.join(base, sample["albedo"]),
-                    "filter_type": "nearest",
-                    "wrap_mode": "clamp",
-                    "raw": True,
-                },
-            },
+            "bsdf": sample_bsdf,
         },
         "turntable": {
             "type": "ply",
@@ -126,6 +163,8 @@ def main():
     ap.add_argument("--repeat", type=int, default=3)
     # Stratified sub-pixel samples like stagehand's (independent is ~5x noisier here).
     ap.add_argument("--sampler", default="multijitter")
+    # A GGX sample as stagehand's own sum (default) or as Mitsuba's rough plastic.
+    ap.add_argument("--glossy", choices=["sum", "roughplastic"], default="sum")
     args = ap.parse_args()
     try:
         spps = sorted({int(s) for s in args.spp.split(",") if s.strip()})
@@ -141,6 +180,7 @@ def main():
     with open(args.scene_json) as f:
         desc = json.load(f)
     desc["sampler"] = args.sampler
+    desc["glossy"] = args.glossy
     base = os.path.dirname(os.path.abspath(args.scene_json))
 
     t = time.perf_counter()
@@ -188,6 +228,7 @@ def main():
         "variant": variant,
         "integrator": "path",
         "sampler": args.sampler,
+        "glossy": args.glossy if desc["sample"].get("ggx") else None,
         "max_depth": int(desc["max_depth"]),
         "threads": os.cpu_count() or 0,
         "load_s": load_s,

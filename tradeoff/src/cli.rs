@@ -56,6 +56,10 @@ pub struct TradeoffArgs {
     /// Samples per pixel of Mitsuba's converged image.
     #[arg(long, default_value_t = 1024, value_name = "N")]
     mitsuba_reference_spp: u32,
+    /// How Mitsuba renders a GGX sample: `sum` (stagehand's model: Lambert plus the GGX
+    /// lobe) or `roughplastic` (Mitsuba's rough plastic, its diffuse base under the coating).
+    #[arg(long, default_value = "sum", value_parser = ["sum", "roughplastic"])]
+    mitsuba_glossy: String,
 }
 
 /// Runs the sweep `args` asks for; returns the exit code (0 done, 1 failed, 2 bad input).
@@ -197,10 +201,10 @@ fn print_summary(t: &Tradeoff, out: &Path, c: Option<&Comparison>) {
             c.peer.version,
             c.agreement.rel_rmse * 100.0,
             c.mean_ratio,
-            if c.lambert {
-                ""
-            } else {
-                " (scene not Lambertian: its specular lobe is not exported)"
+            match (c.lambert, c.ggx) {
+                (true, _) => "",
+                (false, Some(_)) => " (GGX lobe exported)",
+                (false, None) => " (scene not Lambertian: its specular lobe is not exported)",
             }
         );
         for r in &c.rows {
@@ -290,10 +294,11 @@ fn run_mitsuba(
         export.vertices,
         export.faces,
         export.texels,
-        if export.lambert {
-            ""
-        } else {
-            "; NOT Lambertian: the specular lobe is dropped"
+        match (export.lambert, export.ggx) {
+            (true, _) => String::new(),
+            (false, Some(g)) =>
+                format!("; GGX lobe as roughplastic (α {}, η {:.3})", g.alpha, g.eta),
+            (false, None) => "; NOT Lambertian: the specular lobe is dropped".into(),
         },
         python.display()
     );
@@ -308,6 +313,7 @@ fn run_mitsuba(
         .args(["--spp", &spp_arg])
         .args(["--reference-spp", &args.mitsuba_reference_spp.to_string()])
         .args(["--repeat", &args.repeat.to_string()])
+        .args(["--glossy", &args.mitsuba_glossy])
         .status()
         .map_err(|e| TradeoffError::io(&python, e))?;
     if !status.success() {
@@ -337,5 +343,6 @@ fn run_mitsuba(
         mean_ratio,
         lambert: export.lambert,
         max_ks: export.max_ks,
+        ggx: export.ggx,
     })
 }

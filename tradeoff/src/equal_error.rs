@@ -170,4 +170,6 @@ pub struct Comparison {
     pub lambert: bool,
     /// Largest Ward ρs on the sample (dropped from the export when > 0).
     pub max_ks: f32,
+    /// The sample's GGX lobe when exported as Mitsuba's `roughplastic`.
+    pub ggx: Option<super::mitsuba::GgxLobe>,
 }

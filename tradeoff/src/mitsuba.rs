@@ -15,13 +15,18 @@
 //!
 //! Radiometric scale: the renderer's irradiance from a lamp is I·cosθ/r² with I in reference
 //! units × mm²; a sphere of radius ρ and radiance L has intensity π ρ² L in every direction,
-//! so both renderers produce radiance in the same units. Only the Lambert term is exported:
-//! a Ward lobe (ks > 0) is dropped and reported (`lambert` false).
+//! so both renderers produce radiance in the same units. The Lambert term is exported, and a
+//! GGX lobe shared by the whole sample (`ggx`: α, F0 and the dielectric's η), which the peer
+//! script renders as our sum of Lambert and lobe (a `blendbsdf` of `diffuse` on
+//! `albedo_doubled.pfm` and a GGX `roughconductor` of that η, each doubled) or, asked, as
+//! Mitsuba's `roughplastic`; any other lobe (Ward, Blinn–Phong) is dropped and reported
+//! (`lambert` false, `ggx` none).
 
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 use glam::Vec3A;
+use serde::Serialize;
 use serde_json::json;
 
 use super::{Setup, TradeoffError};
@@ -29,6 +34,7 @@ use stagehand_simulator::render::RenderError;
 use stagehand_simulator::render::config::SimSpec;
 use stagehand_simulator::render::geometry::{RigAngles, ToSample};
 use stagehand_simulator::render::lights::{self, Emitter, HALOGEN_RADIUS_MM, TURNTABLE_RADIUS_MM};
+use stagehand_simulator::render::material::Model;
 use stagehand_simulator::render::sample::Sample;
 
 /// Albedo of the turntable around the sample (the renderer's dark grey).
@@ -194,6 +200,46 @@ pub fn albedo_texture(sample: &Sample, n: usize) -> Vec<f32> {
     rgb
 }
 
+/// A sample whose every texel has the same GGX lobe: exported as Mitsuba's `roughplastic`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct GgxLobe {
+    /// GGX roughness α.
+    pub alpha: f32,
+    /// Normal-incidence reflectance F0.
+    pub f0: f32,
+    /// The dielectric's index of refraction with that F0 (air outside).
+    pub eta: f32,
+}
+
+/// The GGX lobe shared by every texel centre of an `n` × `n` grid over the sample, or `None`
+/// when some texel is not GGX or has another α or F0.
+pub fn uniform_ggx(sample: &Sample, n: usize) -> Option<GgxLobe> {
+    let cell = sample.size_mm / n as f32;
+    let origin = -0.5 * sample.size_mm;
+    let first = sample.material_at(origin + 0.5 * cell, origin + 0.5 * cell);
+    if first.model != Model::Ggx || !(first.ks > 0.0 && first.ks < 1.0) {
+        return None;
+    }
+    for j in 0..n {
+        for i in 0..n {
+            let m = sample.material_at(
+                origin + (i as f32 + 0.5) * cell,
+                origin + (j as f32 + 0.5) * cell,
+            );
+            if m.model != Model::Ggx || m.alpha != first.alpha || m.ks != first.ks {
+                return None;
+            }
+        }
+    }
+    // F0 = ((η − 1)/(η + 1))², so η = (1 + √F0)/(1 − √F0).
+    let r = first.ks.sqrt();
+    Some(GgxLobe {
+        alpha: first.alpha,
+        f0: first.ks,
+        eta: (1.0 + r) / (1.0 - r),
+    })
+}
+
 /// What the export wrote.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Export {
@@ -209,6 +255,8 @@ pub struct Export {
     pub lambert: bool,
     /// Largest Ward ρs on the sample.
     pub max_ks: f32,
+    /// The sample's GGX lobe, exported as `roughplastic` (other lobes are dropped).
+    pub ggx: Option<GgxLobe>,
 }
 
 fn put(path: &Path, bytes: &[u8]) -> Result<(), TradeoffError> {
@@ -290,6 +338,17 @@ pub fn export(
         &turntable_mesh(sample.size_mm).to_ply(),
     )?;
     let albedo = albedo_texture(&sample, texels);
+    let ggx = uniform_ggx(&sample, texels);
+    if ggx.is_some() {
+        // The peer blends half of each BSDF: the diffuse part doubled keeps the sum.
+        let doubled: Vec<f32> = albedo.iter().map(|a| 2.0 * a).collect();
+        super::pfm::write(
+            &dir.join("albedo_doubled.pfm"),
+            texels as u32,
+            texels as u32,
+            &doubled,
+        )?;
+    }
     super::pfm::write(
         &dir.join("albedo.pfm"),
         texels as u32,
@@ -309,7 +368,8 @@ pub fn export(
             "width": cam.width,
             "height": cam.height,
         },
-        "sample": { "mesh": "sample.ply", "albedo": "albedo.pfm", "texels": texels },
+        "sample": { "mesh": "sample.ply", "albedo": "albedo.pfm", "texels": texels,
+                    "ggx": ggx, "albedo_doubled": ggx.map(|_| "albedo_doubled.pfm") },
         "turntable": { "mesh": "turntable.ply", "albedo": TURNTABLE_ALBEDO },
         "emitters": emitters,
         "max_depth": max_depth,
@@ -327,6 +387,7 @@ pub fn export(
         texels,
         lambert,
         max_ks: sample.max_ks,
+        ggx,
     })
 }
 
@@ -426,5 +487,38 @@ mod tests {
             rgb.iter().all(|&a| (a - 0.8).abs() < 1e-6),
             "planes are grey 0.8"
         );
+    }
+
+    /// A uniform GGX sample exports its lobe (for `roughplastic`); a Ward one does not.
+    #[test]
+    fn a_glossy_ggx_sample_exports_its_lobe_and_a_ward_one_does_not() {
+        let export_of = |scene: &str| {
+            let setup = Setup::new(SetupOptions {
+                scene: scene.into(),
+                width: 16,
+                height: 12,
+                ..SetupOptions::default()
+            })
+            .expect("setup");
+            let dir = tempfile::tempdir().expect("tmp");
+            let e = export(&setup, 5.0, true, 2, dir.path()).expect("export");
+            let json: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(&e.scene_json).expect("json"))
+                    .expect("valid json");
+            (e, json)
+        };
+        let (e, json) = export_of("plastic_ggx");
+        let g = e.ggx.expect("plastic_ggx is uniform GGX");
+        assert!(!e.lambert);
+        assert_eq!((g.alpha, g.f0), (0.15, 0.04));
+        assert!(
+            (g.eta - 1.5).abs() < 1e-5,
+            "F0 0.04 is a dielectric of η 1.5: {}",
+            g.eta
+        );
+        assert_eq!(json["sample"]["ggx"]["alpha"], 0.15f32 as f64);
+        let (e, json) = export_of("bumps");
+        assert!(e.ggx.is_none() && !e.lambert, "bumps has a Ward lobe");
+        assert!(json["sample"]["ggx"].is_null());
     }
 }

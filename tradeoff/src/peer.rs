@@ -62,6 +62,9 @@ pub struct PeerRun {
     /// Timed repetitions per spp.
     #[serde(default)]
     pub repeat: u32,
+    /// How a GGX sample was rendered (`sum` or `roughplastic`); none for other samples.
+    #[serde(default)]
+    pub glossy: Option<String>,
     /// Measured spp counts, increasing.
     pub points: Vec<PeerPoint>,
 }

@@ -162,7 +162,26 @@ pub fn mitsuba_markdown(c: &Comparison) -> String {
         c.agreement.max_abs,
         c.mean_ratio
     );
-    if !c.lambert {
+    if let (false, Some(g)) = (c.lambert, c.ggx) {
+        let _ = writeln!(
+            md,
+            "\n**Glossy scene:** the sample's GGX lobe (α {}, F0 {}, a dielectric of η {:.3}) \
+             is exported; Mitsuba renders it as {}. Each renderer is held to its own \
+             converged image for the time comparison; the agreement above says how alike the \
+             two models are.",
+            g.alpha,
+            g.f0,
+            g.eta,
+            match c.peer.glossy.as_deref() {
+                Some("roughplastic") =>
+                    "`roughplastic` (its diffuse base under the coating, \
+                     Fresnel-weighted, where stagehand's is a plain sum)",
+                _ =>
+                    "stagehand's sum: `diffuse` plus a GGX `roughconductor` with the \
+                     dielectric's exact Fresnel (stagehand uses Schlick's)",
+            }
+        );
+    } else if !c.lambert {
         let _ = writeln!(
             md,
             "\n**Not a Lambertian scene:** its Ward lobe (ρs up to {:.2}) is not exported \
