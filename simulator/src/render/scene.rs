@@ -489,9 +489,8 @@ impl<'a> Scene<'a> {
         let step = 1.0 / side as f32;
         let lens = lens.filter(|t| t.covers(side, self.laser.is_some()));
         let hits = hits.filter(|t| t.side() == side);
-        let ray = |sub: u32, which: usize, px: f32, py: f32| match lens {
-            Some(t) => pose.ray_through(t.uv(pixel, sub, which)),
-            None => pose.ray(px, py),
+        let ray = |sub: u32, which: usize, px: f32, py: f32| {
+            sample_ray(pose, lens, pixel, sub, which, (px, py))
         };
         let laser_alone = self.laser_alone();
         let angle = if self.laser.is_some() {
@@ -552,13 +551,15 @@ impl<'a> Scene<'a> {
     ) -> PackedHit {
         let side = self.knobs.spp_side;
         let pixel = y as u64 * pose.width as u64 + x as u64;
-        let d = match lens.filter(|t| t.covers(side, self.laser.is_some())) {
-            Some(t) => pose.ray_through(t.uv(pixel, sub, 0)),
-            None => {
-                let (px, py) = sample_position(x, y, pose.width, sub, side);
-                pose.ray(px, py)
-            }
-        };
+        let lens = lens.filter(|t| t.covers(side, self.laser.is_some()));
+        let d = sample_ray(
+            pose,
+            lens,
+            pixel,
+            sub,
+            0,
+            sample_position(x, y, pose.width, sub, side),
+        );
         let packed = self.locate(pose.origin, d);
         match self.hit_from(pose.origin, d, packed) {
             Some(h) => PackedHit {
@@ -574,4 +575,22 @@ impl<'a> Scene<'a> {
 #[inline]
 fn indirect_radiance(bounce: &BounceMap, material: &Material, p: Vec3A) -> Vec3A {
     material.albedo.max(Vec3A::ZERO) * std::f32::consts::FRAC_1_PI * bounce.irradiance_at(p.x, p.y)
+}
+
+/// Unit ray through point `which` of sample `sub` of pixel index `pixel` (0 the sample at
+/// image position `at`, 1 and 2 its neighbours): from the lens table when there is one, else
+/// computed, bit for bit the same.
+#[inline]
+fn sample_ray(
+    pose: &CameraPose,
+    lens: Option<&LensTable>,
+    pixel: u64,
+    sub: u32,
+    which: usize,
+    at: (f32, f32),
+) -> Vec3A {
+    match lens {
+        Some(t) => pose.ray_through(t.uv(pixel, sub, which)),
+        None => pose.ray(at.0, at.1),
+    }
 }
