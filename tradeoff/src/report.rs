@@ -12,7 +12,7 @@ use super::sweep::{Point, Tradeoff};
 /// Columns of `tradeoff.csv`.
 pub const CSV_HEADER: &str = "label,knob,value,time_s,build_s,rmse,rel_rmse,max_abs,pareto,\
 same_as_standard,spp_side,halogen_samples,tube_samples,bounces,bounce_rays,bounce_tolerance,\
-relief_mm,shadow_maps,dipole_samples";
+relief_mm,shadow_maps,dipole_samples,adaptive_threshold";
 
 /// The CSV text: a header then one row per point in sweep order.
 pub fn csv(t: &Tradeoff) -> String {
@@ -22,7 +22,7 @@ pub fn csv(t: &Tradeoff) -> String {
         let k = &p.setting.knobs;
         let _ = writeln!(
             out,
-            "{},{},{},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{},{},{},{},{},{},{},{},{},{},{},{}",
             p.setting.label,
             p.setting.knob,
             p.setting.value,
@@ -41,7 +41,8 @@ pub fn csv(t: &Tradeoff) -> String {
             k.bounce_tolerance,
             k.relief_mm,
             k.shadow_maps,
-            k.dipole_samples
+            k.dipole_samples,
+            k.adaptive_threshold
         );
     }
     out

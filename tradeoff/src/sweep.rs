@@ -150,8 +150,33 @@ pub fn default_settings() -> Vec<Setting> {
     vary("dipole_samples", &["4", "16", "64"], &|k, v| {
         k.dipole_samples = num(v)
     });
+    // Adaptive sampling changes two knobs together: a contrast threshold and the sample count
+    // of the pixels it refines.
+    for (threshold, side) in ADAPTIVE {
+        let mut k = standard.clone();
+        k.preset = "standard+custom".into();
+        k.adaptive_threshold = threshold;
+        k.spp_side = side;
+        out.push(Setting {
+            label: format!("adaptive={threshold} spp_side={side}"),
+            knob: "adaptive_threshold".into(),
+            value: format!("{threshold}@{side}"),
+            knobs: k,
+        });
+    }
     out
 }
+
+/// The adaptive settings swept: (contrast threshold, `spp_side` of refined pixels).
+const ADAPTIVE: [(f32, u32); 7] = [
+    (0.05, 2),
+    (0.05, 3),
+    (0.05, 4),
+    (0.02, 4),
+    (0.02, 8),
+    (0.01, 8),
+    (0.01, 16),
+];
 
 /// A finished sweep.
 #[derive(Debug, Clone)]

@@ -27,6 +27,10 @@ pub const MAX_TEXELS: usize = 256;
 pub const SKY_TEXELS: usize = 64;
 /// Azimuths of the sky-view horizon scan.
 pub const SKY_AZIMUTHS: usize = 16;
+/// Most texels per side of the effect plan's light probe.
+pub const PROBE_TEXELS: usize = 32;
+/// Most hemisphere rays per texel of the light probe.
+pub const PROBE_RAYS: u32 = 16;
 /// Key of the bounce-ray hash.
 const BOUNCE_KEY: u64 = 0xb0_u64 << 56 | 0x0c_e5a1;
 
@@ -128,7 +132,10 @@ pub fn compute(
         let gathered: Vec<Vec3A> = texels
             .par_iter()
             .enumerate()
-            .map(|(k, (t, _, _))| gather(grid, prev, t.p, t.n, k as u64, bounce, rays))
+            .map(|(k, (t, _, _))| {
+                let prev = |q: Vec3A| prev.at(q.x, q.y);
+                gather(grid, t.p, t.n, k as u64, bounce as u64, rays, &prev)
+            })
             .collect();
         let mut next = TexGrid::new(n, size);
         for ((out, e), (t, _, _)) in next.values_mut().iter_mut().zip(&gathered).zip(&texels) {
@@ -157,18 +164,60 @@ pub fn compute(
     })
 }
 
-/// Irradiance at `p` (normal `nrm`) from the radiance `prev` of the relief it sees, by `rays`
-/// cosine-distributed rays.
+/// The effect plan's light probe: the first bounce under the frame's actual light on a coarse
+/// grid (at most [`PROBE_TEXELS`] per side and [`PROBE_RAYS`] rays, never finer than the pass
+/// it decides on, given by `texels` and `rays`), with the direct light evaluated exactly where
+/// each ray lands (a coarse texel grid would smear lit tops down unlit walls). Returns the
+/// largest added irradiance at any probe texel (any channel) relative to the mean direct
+/// irradiance over them; `None` without a relief.
+pub fn probe(surface: &dyn Surface, light: &DirectLight, texels: usize, rays: u32) -> Option<f32> {
+    let grid = surface.grid()?;
+    let n = grid
+        .cells()
+        .clamp(1, PROBE_TEXELS.min(texels.div_ceil(2)).max(1));
+    let tex = TexGrid::new(n, surface.size_mm());
+    let rays = rays.clamp(1, PROBE_RAYS);
+    let radiance = |q: Vec3A| {
+        let (p, nrm) = surface.point(q.x, q.y);
+        let albedo = surface
+            .material_at(q.x, q.y)
+            .albedo
+            .clamp(Vec3A::ZERO, Vec3A::ONE);
+        albedo * light.irradiance(p, nrm, 0.0, |_| 1.0, &mut 0) * (1.0 / PI)
+    };
+    let (direct, peak) = (0..n * n)
+        .into_par_iter()
+        .map(|k| {
+            let (x, y) = tex.centre(k % n, k / n);
+            let (p, nrm) = surface.point(x, y);
+            let direct = light.irradiance(p, nrm, 0.0, |_| 1.0, &mut 0).element_sum() / 3.0;
+            let e = gather(grid, p, nrm, k as u64, u64::MAX, rays, &radiance);
+            (direct, e.max_element())
+        })
+        .map(|(d, e)| {
+            if d.is_finite() && e.is_finite() {
+                (d, e)
+            } else {
+                (0.0, 0.0)
+            }
+        })
+        .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1.max(b.1)));
+    let mean = direct / (n * n) as f32;
+    Some(if mean > 0.0 { peak / mean } else { 0.0 })
+}
+
+/// Irradiance at `p` (normal `nrm`) from the `radiance` of the relief points it sees, by
+/// `rays` cosine-distributed rays (rotated per `texel` and `bounce`).
 fn gather(
     grid: &HeightGrid,
-    prev: &TexGrid,
     p: Vec3A,
     nrm: Vec3A,
     texel: u64,
-    bounce: u32,
+    bounce: u64,
     rays: u32,
+    radiance: &dyn Fn(Vec3A) -> Vec3A,
 ) -> Vec3A {
-    let h = hash3(BOUNCE_KEY, texel, bounce as u64, 0);
+    let h = hash3(BOUNCE_KEY, texel, bounce, 0);
     let (u, v) = (unit_f32(h), unit_f32(h.rotate_left(24)));
     let o = shadow_origin(p, nrm);
     let mut sum = Vec3A::ZERO;
@@ -177,8 +226,7 @@ fn gather(
         if let Some(hit) = grid.first_hit(o, d, 0.0, f32::INFINITY)
             && hit.wall.is_none()
         {
-            let q = o + d * hit.t;
-            sum += prev.at(q.x, q.y);
+            sum += radiance(o + d * hit.t);
         }
     }
     let e = sum * (PI / rays as f32);

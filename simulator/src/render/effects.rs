@@ -83,24 +83,30 @@ impl Plan {
 }
 
 /// Decides the effects for `sample` under the lit `lights` and the laser; `relief` is the
-/// sample's sky-view and albedo bound ([`super::bounce::relief_stats`], `None` when flat).
+/// sample's sky-view and albedo bound ([`super::bounce::relief_stats`], `None` when flat);
+/// `probe` measures the first bounce under this frame's light (its argument: whether shadows
+/// are on; see [`super::bounce::probe`]) and is called only when the relief's geometric bound
+/// leaves interreflection in question.
 pub fn plan(
     sample: &Sample,
     lights: &[Light],
     laser: Option<(&LaserSheet, f64, u32, f64)>,
     knobs: &Knobs,
     relief: Option<&ReliefStats>,
+    probe: &dyn Fn(bool) -> Option<f32>,
 ) -> Plan {
     let lit = laser.is_some()
         || lights
             .iter()
             .any(|l| !matches!(l.emitter, Emitter::Backlight { .. }));
-    let (interreflection, bounces) = interreflection(sample, relief, lit, knobs);
+    let shadows = shadows(sample, lights, laser.map(|l| l.0));
+    let probe = (laser.is_none()).then_some(|| probe(shadows.on));
+    let (interreflection, bounces) = interreflection(sample, relief, lit, knobs, probe);
     Plan {
         interreflection,
         bounces,
         subsurface: subsurface(sample, lit, knobs),
-        shadows: shadows(sample, lights, laser.map(|l| l.0)),
+        shadows,
         specular: specular(sample, lights, laser.is_some()),
         laser: match laser {
             Some((_, tilt, nm, mw)) => {
@@ -217,13 +223,16 @@ fn backlight(sample: &Sample, lights: &[Light]) -> Decision {
 }
 
 /// Interreflection is worth simulating only on concave relief whose first bounce's bound
-/// (ρmax·(1 − Vmin)) exceeds the tolerance; then as many bounces as have bounds above it,
-/// capped at the knob.
+/// (ρmax·(1 − Vmin)) exceeds the tolerance, and then only if the light probe (when given: not
+/// under the laser, whose sheet is thinner than the probe's texels) finds the first bounce
+/// under this frame's light above it too; then as many bounces as have estimates above it
+/// (bounce k: probe·(ρmax(1 − Vmin))^(k−1)), capped at the knob.
 fn interreflection(
     sample: &Sample,
     relief: Option<&ReliefStats>,
     lit: bool,
     knobs: &Knobs,
+    probe: Option<impl FnOnce() -> Option<f32>>,
 ) -> (Decision, u32) {
     let off = |why: String| (Decision::off(why), 0);
     let Some(r) = relief.filter(|_| sample.grid.is_some()) else {
@@ -256,6 +265,34 @@ fn interreflection(
         return off(format!(
             "{numbers} needs {needed} bounce(s) but bounces = 0"
         ));
+    }
+    if let Some(first) = probe.and_then(|p| p()).filter(|f| f.is_finite()) {
+        let tol = knobs.bounce_tolerance;
+        let probed = format!(
+            "concave relief ({numbers}), but under this light the first bounce adds at most \
+             {first:.4} of the mean direct irradiance (light probe: at most {} texels per side, {} rays)",
+            super::bounce::PROBE_TEXELS,
+            super::bounce::PROBE_RAYS
+        );
+        if first <= tol {
+            return off(format!("{probed} ≤ tolerance {tol}"));
+        }
+        let mut lit_needed = 0u32;
+        let mut estimate = first;
+        while lit_needed < needed && estimate > tol {
+            lit_needed += 1;
+            estimate *= per;
+        }
+        let simulated = lit_needed.min(knobs.bounces);
+        return (
+            Decision::on(format!(
+                "concave relief, {numbers}; under this light the first bounce adds up to \
+                 {first:.4} of the mean direct irradiance > tolerance {tol}: {lit_needed} \
+                 bounce(s) above it, {simulated} simulated (bounces = {}), {} rays per texel",
+                knobs.bounces, knobs.bounce_rays
+            )),
+            simulated,
+        );
     }
     (
         Decision::on(format!(

@@ -98,6 +98,7 @@ pub struct Renderer {
 struct TransportCaches {
     relief: pass_cache::PassCache<Option<bounce::ReliefStats>>,
     bounce: pass_cache::PassCache<Option<bounce::BounceMap>>,
+    probe: pass_cache::PassCache<Option<f32>>,
     subsurface: pass_cache::PassCache<Option<subsurface::SubsurfaceMap>>,
 }
 
@@ -316,12 +317,31 @@ impl Renderer {
         let relief = self.passes.relief.get(relief_key(&sample), || {
             bounce::relief_stats(sample.as_ref())
         });
+        let probe = |shadows: bool| {
+            let direct = irradiance::DirectLight {
+                lights: &lights,
+                laser: None,
+                grid: sample.grid.as_ref(),
+                shadows,
+                tube_points: knobs.tube_samples,
+            };
+            let key = format!(
+                "probe|{}|{lights:?}|{shadows}|{knobs:?}",
+                relief_key(&sample)
+            );
+            let cells = sample.grid.as_ref().map_or(1, |g| g.cells());
+            let texels = bounce::texels(cells, knobs.spp_side);
+            *self.passes.probe.get(key, || {
+                bounce::probe(sample.as_ref(), &direct, texels, knobs.bounce_rays)
+            })
+        };
         let plan = effects::plan(
             &sample,
             &lights,
             laser.as_ref().map(|l| (&l.0, l.1, l.2, l.3)),
             knobs,
             relief.as_ref().as_ref(),
+            &probe,
         );
         let shading = Shading {
             shadows: plan.shadows.on,
@@ -345,8 +365,11 @@ impl Renderer {
             knobs,
             lit,
         );
-        let lens = if lit {
-            self.lens_tables.get(&pose, knobs.spp_side, laser.is_some())
+        let laser_on = laser.is_some();
+        // Adaptive sampling: one sample per pixel first, the full count only where it differs.
+        let adaptive = lit && knobs.adaptive_threshold > 0.0 && knobs.spp_side > 1;
+        let lens = if lit && !adaptive {
+            self.lens_tables.get(&pose, knobs.spp_side, laser_on)
         } else {
             None
         };
@@ -365,34 +388,53 @@ impl Renderer {
                 .as_ref()
                 .and_then(|s| s.as_ref().as_ref()),
         );
-        let hits = if lit {
-            self.primary_hits(&scene, &sample, &pose, lens.as_deref(), tubes_key, knobs)
-        } else {
-            None
-        };
-        let width = cam.width as usize;
-        let mut rgb = vec![0f32; width * cam.height as usize * 3];
-        let shadow_rays: u64 = rgb
-            .par_chunks_mut(width * 3)
-            .enumerate()
-            .map(|(y, row)| {
-                let mut rays = 0u64;
-                if lit {
-                    for x in 0..width {
-                        let radiance = scene.pixel_with(
-                            &pose,
-                            lens.as_deref(),
-                            hits.as_deref(),
-                            x as u32,
-                            y as u32,
-                            &mut rays,
-                        );
-                        row[x * 3..x * 3 + 3].copy_from_slice(&radiance.to_array());
+        let (rgb, shadow_rays, refined) = if adaptive {
+            let mut once = knobs.clone();
+            once.spp_side = 1;
+            let first = scene.with_knobs(&once);
+            let lens1 = self.lens_tables.get(&pose, 1, laser_on);
+            let hits1 =
+                self.primary_hits(&first, &sample, &pose, lens1.as_deref(), tubes_key, &once);
+            let (base, base_rays) = render_rows(
+                &pose,
+                |x, y, rays| {
+                    first.pixel_with(&pose, lens1.as_deref(), hits1.as_deref(), x, y, rays)
+                },
+                |_, _| true,
+            );
+            let refine = contrast_mask(&base, cam.width, cam.height, knobs.adaptive_threshold);
+            let (fine, fine_rays) = render_rows(
+                &pose,
+                |x, y, rays| scene.pixel_with(&pose, None, None, x, y, rays),
+                |x, y| refine[y as usize * cam.width as usize + x as usize],
+            );
+            let rgb = base
+                .chunks_exact(3)
+                .zip(fine.chunks_exact(3))
+                .zip(&refine)
+                .flat_map(|((b, f), &r)| {
+                    if r {
+                        [f[0], f[1], f[2]]
+                    } else {
+                        [b[0], b[1], b[2]]
                     }
-                }
-                rays
-            })
-            .sum();
+                })
+                .collect();
+            let count = refine.iter().filter(|&&r| r).count();
+            (rgb, base_rays + fine_rays, Some(count))
+        } else {
+            let hits = if lit {
+                self.primary_hits(&scene, &sample, &pose, lens.as_deref(), tubes_key, knobs)
+            } else {
+                None
+            };
+            let (rgb, rays) = render_rows(
+                &pose,
+                |x, y, rays| scene.pixel_with(&pose, lens.as_deref(), hits.as_deref(), x, y, rays),
+                |_, _| lit,
+            );
+            (rgb, rays, None)
+        };
         let notes = self.notes(&NoteInputs {
             knobs,
             camera: cam,
@@ -405,6 +447,7 @@ impl Renderer {
             shadow_rays,
             lit,
             transport: &transport,
+            refined,
         });
         Ok(RadianceImage {
             width: cam.width,
@@ -530,6 +573,9 @@ impl Renderer {
                 "one shadow ray per light sample"
             });
         }
+        if let Some(refined) = n.refined {
+            notes["stats"]["adaptive_refined_pixels"] = json!(refined);
+        }
         if !n.unknown_lamps.is_empty() {
             notes["ignored_lamps"] = json!(n.unknown_lamps);
         }
@@ -550,6 +596,8 @@ struct NoteInputs<'a> {
     shadow_rays: u64,
     lit: bool,
     transport: &'a Transport,
+    /// Pixels adaptive sampling rendered at the full sample count (`None` when off).
+    refined: Option<usize>,
 }
 
 /// The frame's light-transport passes, as the plan called for them (`None` when off or dark).
@@ -575,6 +623,57 @@ impl Transport {
             "subsurface_shadow_rays": s.map_or(0, |s| s.stats.shadow_rays),
         })
     }
+}
+
+/// Renders the pixels of `pose` where `want(x, y)` with `pixel` (rows in parallel; the others
+/// stay black): the RGB image and the shadow rays marched.
+fn render_rows(
+    pose: &geometry::CameraPose,
+    pixel: impl Fn(u32, u32, &mut u64) -> glam::Vec3A + Sync,
+    want: impl Fn(u32, u32) -> bool + Sync,
+) -> (Vec<f32>, u64) {
+    let width = pose.width as usize;
+    let mut rgb = vec![0f32; width * pose.height as usize * 3];
+    let rays = rgb
+        .par_chunks_mut(width * 3)
+        .enumerate()
+        .map(|(y, row)| {
+            let mut rays = 0u64;
+            for x in 0..width {
+                if want(x as u32, y as u32) {
+                    let radiance = pixel(x as u32, y as u32, &mut rays);
+                    row[x * 3..x * 3 + 3].copy_from_slice(&radiance.to_array());
+                }
+            }
+            rays
+        })
+        .sum();
+    (rgb, rays)
+}
+
+/// Adaptive sampling's choice: the pixels of `rgb` (one sample each) that differ in some
+/// channel from a 4-neighbour by more than `threshold` × the image's mean value.
+fn contrast_mask(rgb: &[f32], width: u32, height: u32, threshold: f32) -> Vec<bool> {
+    let (w, h) = (width as usize, height as usize);
+    let mean = rgb.iter().map(|&v| v as f64).sum::<f64>() / rgb.len().max(1) as f64;
+    let limit = threshold * mean as f32;
+    let differs =
+        |a: usize, b: usize| (0..3).any(|c| (rgb[a * 3 + c] - rgb[b * 3 + c]).abs() > limit);
+    let mut mask = vec![false; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            if x + 1 < w && differs(i, i + 1) {
+                mask[i] = true;
+                mask[i + 1] = true;
+            }
+            if y + 1 < h && differs(i, i + w) {
+                mask[i] = true;
+                mask[i + w] = true;
+            }
+        }
+    }
+    mask
 }
 
 /// Cache key of a sample's relief statistics.

@@ -48,8 +48,16 @@ impl Renderer {
         let p = self.provenance(fixture)?;
         let k = &p.knobs;
         Ok(format!(
-            "{} (spp {s}×{s}, halogen {}, tube {}, bounces {}×{} tol {}, relief {} mm, {}, dipole {}) on {}{}",
+            "{} (spp {s}×{s}{}, halogen {}, tube {}, bounces {}×{} tol {}, relief {} mm, {}, dipole {}) on {}{}",
             k.preset,
+            if k.adaptive_threshold > 0.0 {
+                format!(
+                    " where neighbours differ by > {}, else 1",
+                    k.adaptive_threshold
+                )
+            } else {
+                String::new()
+            },
             k.halogen_samples,
             k.tube_samples,
             k.bounces,

@@ -63,6 +63,7 @@ impl Quality {
                 relief_mm: 0.2,
                 shadow_maps: true,
                 dipole_samples: 8,
+                adaptive_threshold: 0.0,
             },
             Quality::Standard => Knobs {
                 preset: self.name().into(),
@@ -75,6 +76,7 @@ impl Quality {
                 relief_mm: 0.1,
                 shadow_maps: false,
                 dipole_samples: 16,
+                adaptive_threshold: 0.0,
             },
             Quality::Reference => Knobs {
                 preset: self.name().into(),
@@ -87,6 +89,7 @@ impl Quality {
                 relief_mm: 0.1,
                 shadow_maps: false,
                 dipole_samples: 32,
+                adaptive_threshold: 0.0,
             },
         }
     }
@@ -116,6 +119,8 @@ pub struct SimKnobs {
     pub shadow_maps: Option<bool>,
     /// Dipole kernel samples per mean free path.
     pub dipole_samples: Option<u32>,
+    /// Adaptive sampling's contrast threshold (0 = every pixel at `spp_side`²).
+    pub adaptive_threshold: Option<f32>,
 }
 
 /// Every accuracy knob of the renderer. Start from a preset ([`Quality::knobs`]) and
@@ -148,6 +153,12 @@ pub struct Knobs {
     /// Radial samples of the dipole kernel per mean free path (subsurface integration
     /// resolution).
     pub dipole_samples: u32,
+    /// Adaptive sampling: 0 renders every pixel with `spp_side`² samples; above 0, every
+    /// pixel first takes one sample at its centre, and only pixels differing from a
+    /// 4-neighbour by more than this fraction of the frame's mean radiance (edges, shadow
+    /// boundaries, texture) are rendered with `spp_side`², where aliasing error lives.
+    #[serde(default)]
+    pub adaptive_threshold: f32,
 }
 
 fn default_preset() -> String {
@@ -172,6 +183,7 @@ impl Knobs {
             relief_mm,
             shadow_maps,
             dipole_samples,
+            adaptive_threshold,
         } = overrides.clone();
         self.spp_side = spp_side.unwrap_or(self.spp_side);
         self.halogen_samples = halogen_samples.unwrap_or(self.halogen_samples);
@@ -182,6 +194,7 @@ impl Knobs {
         self.relief_mm = relief_mm.unwrap_or(self.relief_mm);
         self.shadow_maps = shadow_maps.unwrap_or(self.shadow_maps);
         self.dipole_samples = dipole_samples.unwrap_or(self.dipole_samples);
+        self.adaptive_threshold = adaptive_threshold.unwrap_or(self.adaptive_threshold);
         if self != before && !self.preset.ends_with("+custom") {
             self.preset.push_str("+custom");
         }
@@ -220,6 +233,14 @@ impl Knobs {
                 got: self.bounce_tolerance.to_string(),
             });
         }
+        if !(self.adaptive_threshold.is_finite() && (0.0..=1.0).contains(&self.adaptive_threshold))
+        {
+            return Err(RenderError::InvalidKnob {
+                knob: "adaptive_threshold",
+                expected: "a fraction of the mean radiance from 0 (off) to 1".into(),
+                got: self.adaptive_threshold.to_string(),
+            });
+        }
         if !(self.relief_mm.is_finite() && (0.01..=5.0).contains(&self.relief_mm)) {
             return Err(RenderError::InvalidKnob {
                 knob: "relief_mm",
@@ -253,6 +274,12 @@ mod tests {
         k.spp_side = 0;
         let e = k.validate().expect_err("0 spp rejected").to_string();
         assert!(e.contains("spp_side") && e.contains("1 to 64"), "{e}");
+        for bad in [f32::NAN, -0.1, 2.0] {
+            let mut k = Quality::Standard.knobs();
+            k.adaptive_threshold = bad;
+            let e = k.validate().expect_err("out of range").to_string();
+            assert!(e.contains("adaptive_threshold"), "{e}");
+        }
         let mut k = Quality::Standard.knobs();
         k.relief_mm = f32::NAN;
         assert!(

@@ -61,7 +61,7 @@ pub struct Shading<'a> {
 }
 
 /// Everything needed to shade one frame, fixed for the frame.
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub struct Scene<'a> {
     sample: &'a Sample,
     lights: Vec<Light>,
@@ -376,6 +376,15 @@ impl<'a> Scene<'a> {
         };
         let f = brdf(&mono, h.n, wi, wo, self.specular).x;
         sheet.camera_rgb * (visible * e * cos_i * f)
+    }
+
+    /// This scene shaded with other knobs (adaptive sampling's first pass takes one sample per
+    /// pixel); lights, shadow maps and transport passes are shared.
+    pub fn with_knobs(&self, knobs: &'a Knobs) -> Scene<'a> {
+        Scene {
+            knobs,
+            ..self.clone()
+        }
     }
 
     /// Radiance leaving `h` toward `wo` for sub-pixel sample `sub` of pixel `pixel`.

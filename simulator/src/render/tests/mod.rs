@@ -13,6 +13,7 @@ use crate::world_snapshot::LaserBeam;
 const W: u32 = 64;
 const H: u32 = 48;
 
+mod adaptive;
 mod laser;
 mod scene;
 mod sensor;

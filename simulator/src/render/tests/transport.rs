@@ -143,7 +143,7 @@ fn transport_pass_timings() {
     use std::time::Instant;
     for preset in [quality::Quality::Preview, quality::Quality::Standard] {
         let knobs = preset.knobs();
-        for fixture in ["bumps", "cavity", "marble", "felt_quasi"] {
+        for fixture in ["bumps", "cavity", "marble", "felt_quasi", "planes"] {
             let sample = Sample::build(fixture, 80.0, knobs.relief_mm).expect("fixture");
             let lights = {
                 let rig = small(BUILTIN_LIGHTSTAGE, fixture);
@@ -159,19 +159,16 @@ fn transport_pass_timings() {
                 )
                 .0
             };
-            let direct = irradiance::DirectLight {
-                lights: &lights,
-                laser: None,
-                grid: sample.grid.as_ref(),
-                shadows: true,
-                tube_points: knobs.tube_samples,
-            };
+            let direct = shadowed(&lights, &sample, &knobs);
             let t = Instant::now();
             let relief = bounce::relief_stats(&sample);
             let t_relief = t.elapsed().as_secs_f64() * 1e3;
-            let t = Instant::now();
             let cells = sample.grid.as_ref().map_or(1, |g| g.cells());
             let texels = bounce::texels(cells, knobs.spp_side);
+            let t = Instant::now();
+            let probe = bounce::probe(&sample, &direct, texels, knobs.bounce_rays);
+            let t_probe = t.elapsed().as_secs_f64() * 1e3;
+            let t = Instant::now();
             let b = bounce::compute(&sample, &direct, knobs.bounces, knobs.bounce_rays, texels);
             let t_bounce = t.elapsed().as_secs_f64() * 1e3;
             let t = Instant::now();
@@ -186,11 +183,86 @@ fn transport_pass_timings() {
                 );
             }
             println!(
-                "{:8} {fixture:11} relief {t_relief:6.1} ms {relief:?} | bounce {t_bounce:7.1} ms {:?} | subsurface {t_sss:7.1} ms {:?}",
+                "{:8} {fixture:11} relief {t_relief:6.1} ms {relief:?} | probe {t_probe:5.1} ms {probe:?} | bounce {t_bounce:7.1} ms {:?} | subsurface {t_sss:7.1} ms {:?}",
                 preset.name(),
                 b.map(|b| b.stats),
                 s.map(|s| s.stats)
             );
         }
+    }
+}
+
+/// Under the tradeoff's lighting (lamps 2 and 5, light arc at 60°) the `planes` step could
+/// bounce light by its geometry, but its wall is unlit: the light probe finds nothing to
+/// bounce, the plan skips the pass, and the full pass agrees (it adds nothing). Turned by the
+/// turntable so the wall faces the lamps, the same step bounces light and the plan says so.
+#[test]
+fn planes_bounce_light_only_when_the_step_is_lit() {
+    use stagehand_devices::rig::AxisRole;
+    let rig_world = |turntable: f64| {
+        let mut rig = small(BUILTIN_LIGHTSTAGE, "planes");
+        SimSpec::edit(&mut rig, |s| s.quality = "standard".into()).expect("sim");
+        let mut w = world("planes", &[("lamp2", 1.0), ("lamp5", 1.0)]);
+        for (role, deg) in [(AxisRole::LightArc, 60.0), (AxisRole::Turntable, turntable)] {
+            let axis = rig.axis_with_role(role).expect("axis");
+            w.axes.insert(axis.id.clone(), deg);
+        }
+        (rig, w)
+    };
+    let (rig, w) = rig_world(0.0);
+    let r = Renderer::new(&rig).expect("renderer");
+    let planned = r.radiance(&w, "cam4").expect("render");
+    let ir = &planned.notes["effects"]["interreflection"];
+    let why = ir["why"].as_str().unwrap_or("");
+    println!("planes at 0°: {why}");
+    assert_eq!(ir["on"], false, "{ir}");
+    assert!(why.contains("light probe") && why.contains("Vmin"), "{why}");
+    assert_eq!(planned.notes["stats"]["bounce_rays"], 0);
+    // The full pass the plan skipped, under the same light.
+    let knobs = quality::Quality::Standard.knobs();
+    let sample = Sample::build("planes", 80.0, knobs.relief_mm).expect("planes");
+    let angles = geometry::RigAngles::from_world(&rig, &w.axes);
+    let to = geometry::ToSample::new(angles.turntable_deg);
+    let nominal = crate::as_built::AsBuilt::nominal(&rig);
+    let lights = lights::lit_lamps(&rig, &nominal, &w, angles, to).0;
+    let direct = shadowed(&lights, &sample, &knobs);
+    let cells = sample.grid.as_ref().map_or(1, |g| g.cells());
+    let texels = bounce::texels(cells, knobs.spp_side);
+    let full = bounce::compute(&sample, &direct, 1, knobs.bounce_rays, texels).expect("relief");
+    assert!(
+        full.stats.added[0] <= knobs.bounce_tolerance,
+        "{:?}",
+        full.stats
+    );
+    let (rig, w) = rig_world(180.0);
+    let r = Renderer::new(&rig).expect("renderer");
+    let turned = r.radiance(&w, "cam4").expect("render");
+    let ir = &turned.notes["effects"]["interreflection"];
+    let why = ir["why"].as_str().unwrap_or("");
+    assert_eq!(ir["on"], true, "{ir}");
+    assert!(
+        why.contains("under this light the first bounce adds up to"),
+        "{why}"
+    );
+    assert!(
+        turned.notes["stats"]["bounce_added"][0]
+            .as_f64()
+            .unwrap_or(0.0)
+            > 0.0
+    );
+}
+
+/// The direct light of `lights` on `sample`, shadowed, as the transport passes see it.
+fn shadowed<'a>(
+    lights: &'a [lights::Light],
+    sample: &'a Sample,
+    knobs: &quality::Knobs,
+) -> irradiance::DirectLight<'a> {
+    irradiance::DirectLight {
+        lights,
+        laser: None,
+        grid: sample.grid.as_ref(),
+        shadows: true,
+        tube_points: knobs.tube_samples,
     }
 }
