@@ -11,6 +11,10 @@ A GGX sample renders as stagehand's model (Lambert + GGX lobe with the dielectri
 summed: a `blendbsdf` of `diffuse` and `roughconductor`, each doubled) unless --glossy
 roughplastic asks for Mitsuba's rough plastic (diffuse base under a Fresnel coating).
 
+A `sheet` emitter (stagehand's line laser) becomes Mitsuba's `projector`, its texture baked
+against the loaded geometry so the projector's irradiance where each texel's ray lands is the
+sheet's (see sheet_projector).
+
 SCENE_JSON is the `scene.json` stagehand's exporter wrote (meshes, albedo texture, a GGX lobe
 rendered as `roughplastic`, emitters and camera in the renderer's sample frame, millimetres; see
 tradeoff/src/mitsuba.rs). Writes OUT_JSON (times, errors, versions) and the
@@ -136,9 +140,89 @@ def load_scene(desc, base):
                 "position": e["position"],
                 "intensity": {"type": "rgb", "value": e["intensity_rgb"]},
             }
+        elif e["type"] == "sheet":
+            # Placed after the geometry is loaded: its texture is baked against the scene.
+            continue
         else:
             raise SystemExit(f"unknown emitter type {e['type']!r}")
+    sheets = [(k, e) for k, e in enumerate(desc["emitters"]) if e["type"] == "sheet"]
+    if sheets:
+        geometry = mi.load_dict(scene)
+        for k, e in sheets:
+            scene[f"laser{k}"] = sheet_projector(e, geometry)
     return mi.load_dict(scene)
+
+
+def sheet_irradiance(e, p):
+    """The laser sheet's irradiance at points p (N×3) on a surface square to the ray, as
+    stagehand's `LaserSheet::irradiance` defines the physical sheet: a Gaussian profile of
+    1/e² half-width `half_width_mm` across the plane, falling as 1/r along it (a fan of
+    constant thickness), zero beyond the fan's half-angle."""
+    o = np.array(e["origin"])
+    n = np.array(e["normal"])
+    c = np.array(e["centre"])
+    v = p - o
+    d = v @ n
+    r = np.linalg.norm(v, axis=1)
+    in_plane = v - np.outer(d, n)
+    sigma2 = 0.25 * e["half_width_mm"] ** 2
+    inside = (in_plane @ c) > np.cos(np.radians(e["fan_half_angle_deg"])) * np.linalg.norm(
+        in_plane, axis=1)
+    near = d * d <= 36.0 * sigma2
+    gauss = np.exp(-0.5 * d * d / sigma2)
+    return np.where(inside & near & (r > 1e-3),
+                    e["peak"] * gauss * e["ref_distance_mm"] / np.maximum(r, 1e-3), 0.0)
+
+
+def sheet_projector(e, geometry):
+    """The laser sheet as Mitsuba's `projector`: a pinhole at the fan's apex looking along
+    its central ray, texture x along the fan and y across the sheet. Each texel's direction is
+    taken from a perspective sensor of the same parameters (the projector's own mapping), cast
+    into the scene, and the texel set so the projector's irradiance at that first hit,
+    pi * T / (z^2 cos theta), equals the sheet's: exact wherever the sheet lands."""
+    o = np.array(e["origin"])
+    c = np.array(e["centre"])
+    n = np.array(e["normal"])
+    sigma = 0.5 * e["half_width_mm"]
+    r_near, r_far = e["range_mm"]
+    texel = sigma / 3.0 / r_far  # tangent-plane texel: a third of sigma at the far end
+    half_x = np.tan(np.radians(e["cover_half_angle_deg"]))
+    half_y = 7.0 * sigma / r_near
+    w = int(np.ceil(2 * half_x / texel))
+    h = int(np.ceil(2 * half_y / texel)) | 1
+    fov = float(np.degrees(2 * np.arctan(half_x)))
+    to_world = mi.ScalarTransform4f().look_at(
+        origin=o.tolist(), target=(o + c).tolist(), up=n.tolist())
+    sensor = mi.load_dict({
+        "type": "perspective", "fov": fov, "fov_axis": "x", "to_world": to_world,
+        "near_clip": 1e-3, "far_clip": 1e5,
+        "film": {"type": "hdrfilm", "width": w, "height": h}})
+    hits = np.zeros((h, w, 3))
+    valid = np.zeros((h, w), dtype=bool)
+    for j in range(h):
+        for i in range(w):
+            ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f((i + 0.5) / w, (j + 0.5) / h),
+                                       mi.Point2f(0.5, 0.5))
+            si = geometry.ray_intersect(ray)
+            if si.is_valid():
+                hits[j, i] = [si.p[0], si.p[1], si.p[2]]
+                valid[j, i] = True
+    p = hits.reshape(-1, 3)
+    e_perp = sheet_irradiance(e, p) * valid.reshape(-1)
+    v = p - o
+    z = v @ c
+    cos_theta = z / np.maximum(np.linalg.norm(v, axis=1), 1e-9)
+    t = np.where(valid.reshape(-1), e_perp * z * z * cos_theta / np.pi, 0.0)
+    rgb = np.outer(t, np.array(e["rgb"])).reshape(h, w, 3).astype(np.float32)
+    print(f"laser sheet as a projector: {w}x{h} texels, fov {fov:.3f} deg", file=sys.stderr)
+    return {
+        "type": "projector",
+        "fov": fov,
+        "fov_axis": "x",
+        "to_world": to_world,
+        "irradiance": {"type": "bitmap", "bitmap": mi.Bitmap(rgb), "raw": True,
+                       "filter_type": "bilinear"},
+    }
 
 
 def render(scene, spp, seed):

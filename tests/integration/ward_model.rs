@@ -102,6 +102,7 @@ fn rendered(material: Material, p: Vector3<f64>, tube_x: f64) -> [f64; 3] {
         origin: Vec3A::new(c.x as f32, c.y as f32, c.z as f32),
         angle: 1e-4,
         neighbours: &|| (Vec3A::X, Vec3A::Y),
+        offset: (0.0, 0.0),
     };
     let wo = Vec3A::new(view.wo.x as f32, view.wo.y as f32, view.wo.z as f32);
     let mut rays = 0;

@@ -60,6 +60,10 @@ pub struct TradeoffArgs {
     /// lobe) or `roughplastic` (Mitsuba's rough plastic, its diffuse base under the coating).
     #[arg(long, default_value = "sum", value_parser = ["sum", "roughplastic"])]
     mitsuba_glossy: String,
+    /// Light the scene with the rig's line laser in this colour (nm, untilted) instead of
+    /// the lamps: the laser-line comparison.
+    #[arg(long, value_name = "NM")]
+    laser: Option<u32>,
 }
 
 /// Runs the sweep `args` asks for; returns the exit code (0 done, 1 failed, 2 bad input).
@@ -88,6 +92,11 @@ fn tradeoff_cmd(args: &TradeoffArgs) -> Result<i32, TradeoffError> {
         camera: args.camera.clone(),
         width: args.width,
         height: args.height,
+        lamps: match args.laser {
+            Some(_) => Vec::new(),
+            None => SetupOptions::default().lamps,
+        },
+        laser_nm: args.laser,
         ..SetupOptions::default()
     })?;
     let out = args
@@ -100,12 +109,15 @@ fn tradeoff_cmd(args: &TradeoffArgs) -> Result<i32, TradeoffError> {
         got: format!("{}: {e}", out.display()),
     })?;
     eprintln!(
-        "tradeoff: `{}` on {} at {}×{}, lamps {}, best of {} on {} threads",
+        "tradeoff: `{}` on {} at {}×{}, {}, best of {} on {} threads",
         args.scene,
         args.camera,
         args.width,
         args.height,
-        setup.options.lamps.join(" + "),
+        match args.laser {
+            Some(nm) => format!("line laser {nm} nm"),
+            None => format!("lamps {}", setup.options.lamps.join(" + ")),
+        },
         args.repeat,
         rayon::current_num_threads()
     );
@@ -208,6 +220,16 @@ fn print_summary(t: &Tradeoff, out: &Path, c: Option<&Comparison>) {
             }
         );
         for r in &c.rows {
+            if r.how == equal_error::Interp::Beyond {
+                println!(
+                    "  {:<22} {:>8.2} ms at {:.2}%: {}",
+                    r.label,
+                    r.time_s * 1e3,
+                    r.rel_rmse * 100.0,
+                    r.how.word()
+                );
+                continue;
+            }
             println!(
                 "  {:<22} {:>8.2} ms at {:.2}%: Mitsuba {:>9.2} ms → {:.1}× ({})",
                 r.label,

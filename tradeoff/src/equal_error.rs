@@ -4,7 +4,13 @@
 //! Relative RMSE (each renderer against its own converged image, over that image's mean) is
 //! the common scale. Beyond the peer's most converged point the Monte Carlo law (error ∝
 //! spp^−½, so time ∝ r^−2) extrapolates; an error the peer beats already at its fewest
-//! samples gets that point's time (it cannot render less than one sample per pixel).
+//! samples gets that point's time (it cannot render less than one sample per pixel). An error
+//! more than [`MAX_EXTRAPOLATION`]× below the peer's most converged one is not compared: the
+//! law would be carried too far (and a setting that reproduces the reference exactly, error
+//! 0, would get an unbounded speed-up).
+
+/// How far below the peer's most converged error the r^−2 law extrapolates.
+pub const MAX_EXTRAPOLATION: f64 = 4.0;
 
 use serde::Serialize;
 
@@ -20,6 +26,9 @@ pub enum Interp {
     Extrapolated,
     /// The peer's fewest-sample point already has a lower error; its time is used.
     AtFewest,
+    /// More than [`MAX_EXTRAPOLATION`]× below the peer's most converged error: not compared
+    /// (the peer's time is NaN and the row stays out of the geometric mean).
+    Beyond,
 }
 
 impl Interp {
@@ -29,14 +38,16 @@ impl Interp {
             Interp::Interpolated => "interpolated",
             Interp::Extrapolated => "extrapolated (time ∝ error⁻²)",
             Interp::AtFewest => "peer's fewest spp already better",
+            Interp::Beyond => "not compared: error beyond the peer's measured range",
         }
     }
 }
 
-/// The peer's time (seconds) to reach relative RMSE `rel`, or `None` if `rel` is not a
-/// positive finite number or no peer point is usable.
+/// The peer's time (seconds) to reach relative RMSE `rel`, or `None` if no peer point is
+/// usable or `rel` is not finite; NaN with [`Interp::Beyond`] when `rel` is 0 or too far below
+/// the peer's measured range.
 pub fn time_at(points: &[PeerPoint], rel: f64) -> Option<(f64, Interp)> {
-    if !(rel.is_finite() && rel > 0.0) {
+    if !(rel.is_finite() && rel >= 0.0) {
         return None;
     }
     let mut pts: Vec<&PeerPoint> = points
@@ -49,6 +60,9 @@ pub fn time_at(points: &[PeerPoint], rel: f64) -> Option<(f64, Interp)> {
     let last = *pts.last()?;
     if rel >= first.rel_rmse {
         return Some((first.time_s, Interp::AtFewest));
+    }
+    if rel * MAX_EXTRAPOLATION < last.rel_rmse {
+        return Some((f64::NAN, Interp::Beyond));
     }
     if rel < last.rel_rmse {
         let t = last.time_s * (last.rel_rmse / rel).powi(2);
@@ -87,7 +101,7 @@ pub struct Row {
     pub speedup: f64,
 }
 
-/// The comparison for each of `front` (stagehand's Pareto points) with a positive error.
+/// The comparison for each of `front` (stagehand's Pareto points).
 pub fn compare(front: &[&Point], peer: &[PeerPoint]) -> Vec<Row> {
     front
         .iter()
@@ -105,12 +119,17 @@ pub fn compare(front: &[&Point], peer: &[PeerPoint]) -> Vec<Row> {
         .collect()
 }
 
-/// Geometric mean of the speed-ups (1 for none).
+/// Geometric mean of the speed-ups of the compared rows (1 for none).
 pub fn geometric_mean_speedup(rows: &[Row]) -> f64 {
-    if rows.is_empty() {
+    let logs: Vec<f64> = rows
+        .iter()
+        .filter(|r| r.how != Interp::Beyond && r.speedup.is_finite() && r.speedup > 0.0)
+        .map(|r| r.speedup.ln())
+        .collect();
+    if logs.is_empty() {
         return 1.0;
     }
-    (rows.iter().map(|r| r.speedup.ln()).sum::<f64>() / rows.len() as f64).exp()
+    (logs.iter().sum::<f64>() / logs.len() as f64).exp()
 }
 
 #[cfg(test)]
@@ -149,8 +168,27 @@ mod tests {
         );
         // Worse than 1 spp: the 1-spp time.
         assert_eq!(time_at(&pts, 0.9), Some((0.01, Interp::AtFewest)));
-        assert_eq!(time_at(&pts, 0.0), None);
+        // Zero error (the reference itself) and errors far below the range: not compared.
+        for rel in [0.0, 0.05 / MAX_EXTRAPOLATION - 1e-6] {
+            let (t, how) = time_at(&pts, rel).expect("beyond");
+            assert!(t.is_nan() && how == Interp::Beyond, "{rel}: {t}");
+        }
+        assert_eq!(time_at(&pts, f64::NAN), None);
         assert_eq!(time_at(&[], 0.1), None);
+        let row = |speedup, how| Row {
+            label: String::new(),
+            time_s: 1.0,
+            rel_rmse: 0.1,
+            peer_time_s: speedup,
+            how,
+            speedup,
+        };
+        let rows = [
+            row(4.0, Interp::Interpolated),
+            row(16.0, Interp::Extrapolated),
+            row(f64::NAN, Interp::Beyond),
+        ];
+        assert!((geometric_mean_speedup(&rows) - 8.0).abs() < 1e-9);
     }
 }
 

@@ -21,6 +21,14 @@
 //! `albedo_doubled.pfm` and a GGX `roughconductor` of that η, each doubled) or, asked, as
 //! Mitsuba's `roughplastic`; any other lobe (Ward, Blinn–Phong) is dropped and reported
 //! (`lambert` false, `ggx` none).
+//!
+//! The line laser (with every lamp off) is exported as a `sheet` emitter: the sheet's apex,
+//! central ray, normal, 1/e² half-width, peak irradiance at its reference distance, fan
+//! half-angle and camera colour, with the distances and fan angle it must cover on the
+//! turntable. The peer bakes it into Mitsuba's `projector` (a texture across and along the
+//! fan, each texel set from the sheet's irradiance where its ray first lands). Under the laser
+//! the albedo is exported as the reflectance at the laser's wavelength (the renderer's
+//! `dot(albedo, reflect_weights)`) in every channel, the sheet carrying the camera colour.
 
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -33,6 +41,7 @@ use super::{Setup, TradeoffError};
 use stagehand_simulator::render::RenderError;
 use stagehand_simulator::render::config::SimSpec;
 use stagehand_simulator::render::geometry::{RigAngles, ToSample};
+use stagehand_simulator::render::laser::{FAN_HALF_ANGLE_DEG, LaserSheet};
 use stagehand_simulator::render::lights::{self, Emitter, HALOGEN_RADIUS_MM, TURNTABLE_RADIUS_MM};
 use stagehand_simulator::render::material::Model;
 use stagehand_simulator::render::sample::Sample;
@@ -259,6 +268,28 @@ pub struct Export {
     pub ggx: Option<GgxLobe>,
 }
 
+/// The laser sheet for the peer: its geometry and radiometry as the renderer uses them, and
+/// what it must cover (the turntable, within [`TURNTABLE_RADIUS_MM`] of the rig's centre).
+fn sheet_emitter(sheet: &LaserSheet) -> serde_json::Value {
+    let apex = sheet.origin.length();
+    let reach = TURNTABLE_RADIUS_MM * 1.1;
+    let near = (apex - reach).max(1.0);
+    json!({
+        "type": "sheet",
+        "origin": sheet.origin.to_array(),
+        "centre": sheet.centre.to_array(),
+        "normal": sheet.normal.to_array(),
+        "fan_axis": sheet.fan_axis.to_array(),
+        "half_width_mm": sheet.half_width_mm,
+        "peak": sheet.peak,
+        "ref_distance_mm": sheet.ref_distance_mm,
+        "rgb": sheet.camera_rgb.to_array(),
+        "fan_half_angle_deg": FAN_HALF_ANGLE_DEG,
+        "cover_half_angle_deg": (reach / near).atan().to_degrees().min(FAN_HALF_ANGLE_DEG),
+        "range_mm": [near, apex + reach],
+    })
+}
+
 fn put(path: &Path, bytes: &[u8]) -> Result<(), TradeoffError> {
     let mut f = std::fs::File::create(path).map_err(|e| TradeoffError::io(path, e))?;
     f.write_all(bytes).map_err(|e| TradeoffError::io(path, e))
@@ -291,15 +322,31 @@ pub fn export(
         other => other.into(),
     })?;
     let lambert = sample.max_ks <= 0.0 && sample.media.is_empty();
-    if world.laser.is_some() {
-        return Err(TradeoffError::Export(
-            "the laser sheet is not exported".into(),
-        ));
-    }
     let angles = RigAngles::from_world(rig, &world.axes);
     let to_sample = ToSample::new(angles.turntable_deg);
     let (lit, _) = lights::lit_lamps(rig, &as_built, world, angles, to_sample);
     let mut emitters = Vec::new();
+    let sheet = match (&world.laser, &rig.laser) {
+        (None, _) => None,
+        (Some(_), _) if !lit.is_empty() => {
+            return Err(TradeoffError::Export(
+                "the laser is exported only with every lamp off".into(),
+            ));
+        }
+        (Some(_), None) => {
+            return Err(TradeoffError::Export("the rig has no line laser".into()));
+        }
+        (Some(beam), Some(spec)) => Some(LaserSheet::built(
+            spec,
+            beam,
+            angles.light_arc_deg,
+            to_sample,
+            &as_built.laser(beam.mount_elevation_deg),
+        )),
+    };
+    if let Some(sheet) = &sheet {
+        emitters.push(sheet_emitter(sheet));
+    }
     for light in &lit {
         match light.emitter {
             Emitter::Halogen {
@@ -337,7 +384,13 @@ pub fn export(
         &dir.join("turntable.ply"),
         &turntable_mesh(sample.size_mm).to_ply(),
     )?;
-    let albedo = albedo_texture(&sample, texels);
+    let mut albedo = albedo_texture(&sample, texels);
+    if let Some(sheet) = &sheet {
+        for rgb in albedo.chunks_exact_mut(3) {
+            let mono = Vec3A::from_slice(rgb).dot(sheet.reflect_weights);
+            rgb.fill(mono);
+        }
+    }
     let ggx = uniform_ggx(&sample, texels);
     if ggx.is_some() {
         // The peer blends half of each BSDF: the diffuse part doubled keeps the sum.
@@ -520,5 +573,60 @@ mod tests {
         let (e, json) = export_of("bumps");
         assert!(e.ggx.is_none() && !e.lambert, "bumps has a Ward lobe");
         assert!(json["sample"]["ggx"].is_null());
+    }
+
+    /// The laser scene exports one sheet emitter with the renderer's sheet (its apex on the
+    /// light arc, unit vectors, the peak and half-width the rig gives, the camera colour) and
+    /// the albedo at the laser's wavelength; lamps with it, a colour the laser lacks, or no
+    /// laser are refused with the reason.
+    #[test]
+    fn the_laser_line_exports_as_a_sheet() {
+        let laser = |nm: u32, lamps: Vec<String>| {
+            Setup::new(SetupOptions {
+                scene: "planes".into(),
+                width: 16,
+                height: 12,
+                lamps,
+                laser_nm: Some(nm),
+                ..SetupOptions::default()
+            })
+        };
+        let setup = laser(650, Vec::new()).expect("setup");
+        let dir = tempfile::tempdir().expect("tmp");
+        let e = export(&setup, 5.0, true, 2, dir.path()).expect("export");
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&e.scene_json).expect("json"))
+                .expect("valid json");
+        let emitters = json["emitters"].as_array().expect("emitters");
+        assert_eq!(emitters.len(), 1);
+        let sheet = &emitters[0];
+        assert_eq!(sheet["type"], "sheet");
+        let v = |k: &str| {
+            let a: Vec<f32> = serde_json::from_value(sheet[k].clone()).expect(k);
+            Vec3A::from_slice(&a)
+        };
+        assert!(
+            (v("origin").length() - 700.0).abs() < 1.0,
+            "{}",
+            v("origin")
+        );
+        for k in ["centre", "normal", "fan_axis"] {
+            assert!((v(k).length() - 1.0).abs() < 1e-4, "{k}");
+        }
+        assert!(v("centre").dot(v("normal")).abs() < 1e-4);
+        assert!(v("rgb").x > 0.9 && v("rgb").y < 0.2, "650 nm is red");
+        let range: Vec<f32> = serde_json::from_value(sheet["range_mm"].clone()).expect("range");
+        assert!(range[0] < 700.0 && range[1] > 700.0, "{range:?}");
+        let (_, _, rgb) = crate::pfm::read(&dir.path().join("albedo.pfm")).expect("albedo");
+        assert!(rgb.chunks_exact(3).all(|c| c[0] == c[1] && c[1] == c[2]));
+        // Refusals, each with its reason.
+        let lit = laser(650, vec!["lamp2".into()]).expect("setup");
+        let err = export(&lit, 5.0, true, 2, dir.path()).expect_err("lamps too");
+        assert!(err.to_string().contains("every lamp off"), "{err}");
+        let err = laser(999, Vec::new()).expect_err("no such colour");
+        assert!(
+            err.is_bad_input() && err.to_string().contains("999 nm"),
+            "{err}"
+        );
     }
 }

@@ -208,6 +208,17 @@ pub fn mitsuba_markdown(c: &Comparison) -> String {
          |---|---:|---:|---:|---:|---|\n",
     );
     for r in &c.rows {
+        if r.how == equal_error::Interp::Beyond {
+            let _ = writeln!(
+                md,
+                "| {} | {} | {:.2}% | — | — | {} |",
+                r.label,
+                ms(r.time_s),
+                r.rel_rmse * 100.0,
+                r.how.word()
+            );
+            continue;
+        }
         let _ = writeln!(
             md,
             "| {} | {} | {:.2}% | {} | {:.1}× | {} |",

@@ -8,7 +8,7 @@ use stagehand_devices::rig::{AxisRole, BUILTIN_LIGHTSTAGE, LampKind, RigSpec, pa
 
 use super::TradeoffError;
 use stagehand_simulator::render::{RenderError, Renderer, quality::Quality};
-use stagehand_simulator::world_snapshot::WorldSnapshot;
+use stagehand_simulator::world_snapshot::{LaserBeam, WorldSnapshot};
 
 /// Largest camera edge accepted, in pixels.
 pub const MAX_EDGE_PX: u32 = 4096;
@@ -30,6 +30,9 @@ pub struct SetupOptions {
     pub light_arc_deg: f64,
     /// Turntable angle in degrees.
     pub turntable_deg: f64,
+    /// The rig's line laser on in this colour (nm), untilted at its mount elevation; `None`
+    /// for no laser.
+    pub laser_nm: Option<u32>,
 }
 
 impl Default for SetupOptions {
@@ -45,6 +48,7 @@ impl Default for SetupOptions {
             lamps: vec!["lamp2".into(), "lamp5".into()],
             light_arc_deg: 60.0,
             turntable_deg: 0.0,
+            laser_nm: None,
         }
     }
 }
@@ -135,17 +139,36 @@ impl Setup {
                 axes.insert(a.id.clone(), deg);
             }
         }
+        let laser = match (options.laser_nm, &rig.laser) {
+            (None, _) => None,
+            (Some(nm), Some(spec)) if spec.colours_nm.contains(&nm) => Some(LaserBeam {
+                colour_nm: nm,
+                tilt_deg: 0.0,
+                mount_elevation_deg: spec.mount_elevation_deg,
+            }),
+            (Some(nm), spec) => {
+                return Err(TradeoffError::InvalidInput {
+                    what: "--laser".into(),
+                    expected: match spec {
+                        Some(s) => format!("one of the laser's colours {:?} nm", s.colours_nm),
+                        None => "a rig with a line laser".into(),
+                    },
+                    got: format!("{nm} nm"),
+                });
+            }
+        };
         let world = WorldSnapshot {
             rig_time_s: 0.0,
             axes,
             lamps,
-            laser: None,
+            laser,
             cart_mm: 0.0,
             fixture: options.scene.clone(),
             fixture_pose: Default::default(),
         };
         let dark = WorldSnapshot {
             lamps: BTreeMap::new(),
+            laser: None,
             ..world.clone()
         };
         let setup = Setup {

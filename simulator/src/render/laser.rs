@@ -9,7 +9,7 @@ use crate::as_built::LaserAsBuilt;
 use crate::world_snapshot::LaserBeam;
 
 /// Half of the fan's opening angle within the sheet.
-const FAN_HALF_ANGLE_DEG: f32 = 30.0;
+pub const FAN_HALF_ANGLE_DEG: f32 = 30.0;
 /// Peak irradiance per milliwatt at `distance_mm` for a 0.4 mm sheet, in units of the
 /// reference lamp's irradiance (power 1 at 800 mm): a 10 mW line is ~50× a halogen lamp.
 const IRRADIANCE_PER_MW: f32 = 5.0;
@@ -123,18 +123,41 @@ impl LaserSheet {
 
     /// Irradiance at `p` on a surface square to the incoming ray (multiply by the cosine of
     /// incidence), the unit direction from `p` toward the emitter, and the distance to it.
-    /// `footprint_var_mm2` is the variance of the sheet distance over the pixel footprint:
-    /// the Gaussian profile is averaged over it (energy-preserving), so a line thinner than
-    /// a pixel still shows at one sample per pixel. Zero outside the fan or more than three
-    /// (effective) half-widths from the sheet.
+    /// `footprint_var_mm2` is the variance of the sheet distance over the footprint (a relief
+    /// texel): the Gaussian profile is averaged over it (energy-preserving), so a line thinner
+    /// than a texel still shows. Zero outside the fan or more than three (effective)
+    /// half-widths from the sheet.
     #[inline]
     pub fn irradiance(&self, p: Vec3A, footprint_var_mm2: f32) -> (f32, Vec3A, f32) {
-        let v = p - self.origin;
-        let d = v.dot(self.normal);
         let sigma2 = 0.25 * self.half_width_mm * self.half_width_mm;
         let var = sigma2 + footprint_var_mm2.max(0.0);
         // Three half-widths (= 6σ) on either side.
-        if d * d > 36.0 * var {
+        self.lit(p, 36.0 * var, |d| {
+            (sigma2 / var).sqrt() * (-0.5 * d * d / var).exp()
+        })
+    }
+
+    /// [`Self::irradiance`] averaged exactly over a pixel sample's footprint, a parallelogram
+    /// whose centre lies `shift` from `p` in sheet distance and across which the sheet distance
+    /// runs ±`a`/2 and ±`b`/2 along its two edges: a line thinner than a pixel integrates over
+    /// it as on a camera's pixel, where a variance-matched Gaussian would spread it into the
+    /// neighbours.
+    #[inline]
+    pub fn irradiance_over(&self, p: Vec3A, shift: f32, a: f32, b: f32) -> (f32, Vec3A, f32) {
+        let sigma = 0.5 * self.half_width_mm;
+        let reach = 6.0 * sigma + 0.5 * (a.abs() + b.abs()) + shift.abs();
+        self.lit(p, reach * reach, |d| {
+            profile_over_footprint(d - shift, a, b, sigma)
+        })
+    }
+
+    /// The sheet's irradiance at `p` with the profile `across` (of the sheet distance, zero
+    /// where its square exceeds `reach2`), the direction toward the emitter and its distance.
+    #[inline]
+    fn lit(&self, p: Vec3A, reach2: f32, across: impl Fn(f32) -> f32) -> (f32, Vec3A, f32) {
+        let v = p - self.origin;
+        let d = v.dot(self.normal);
+        if d * d > reach2 {
             return (0.0, Vec3A::Z, 0.0);
         }
         let r = v.length();
@@ -147,8 +170,7 @@ impl LaserSheet {
         if along <= self.cos_fan * in_plane.length() {
             return (0.0, Vec3A::Z, 0.0);
         }
-        let gauss = (sigma2 / var).sqrt() * (-0.5 * d * d / var).exp();
-        (self.peak * gauss * self.ref_distance_mm / r, -v / r, r)
+        (self.peak * across(d) * self.ref_distance_mm / r, -v / r, r)
     }
 
     /// Where the central ray crosses the plane z = `z`, if it descends.
@@ -158,6 +180,36 @@ impl LaserSheet {
         }
         let t = (z - self.origin.z) / self.centre.z;
         Some(self.origin + self.centre * t)
+    }
+}
+
+/// Mean of the sheet's profile exp(−x²/2σ²) over x = `d` + u·`a` + v·`b`, u and v uniform in
+/// [−½, ½], in closed form: a box along each footprint edge is a difference of the normal CDF
+/// Φ, and the second box a difference of its integral Ψ(x) = x·Φ(x/σ) + σ·φ(x/σ). In f64; an
+/// edge shorter than σ/1000 counts as a point. In [0, 1].
+pub fn profile_over_footprint(d: f32, a: f32, b: f32, sigma: f32) -> f32 {
+    let (d, s) = (d as f64, (sigma as f64).max(1.0e-9));
+    let (a, b) = {
+        let (a, b) = ((a as f64).abs(), (b as f64).abs());
+        (a.max(b), a.min(b))
+    };
+    let small = 1.0e-3 * s;
+    let root_2pi = (2.0 * std::f64::consts::PI).sqrt();
+    let cdf = |x: f64| 0.5 * libm::erfc(-x / (s * std::f64::consts::SQRT_2));
+    let value = if a < small {
+        (-0.5 * d * d / (s * s)).exp()
+    } else if b < small {
+        s * root_2pi * (cdf(d + 0.5 * a) - cdf(d - 0.5 * a)) / a
+    } else {
+        let psi = |x: f64| x * cdf(x) + s / root_2pi * (-0.5 * x * x / (s * s)).exp();
+        let (h, k) = (0.5 * a, 0.5 * b);
+        let second = psi(d + h + k) - psi(d + h - k) - psi(d - h + k) + psi(d - h - k);
+        s * root_2pi * second / (a * b)
+    };
+    if value.is_finite() {
+        value.clamp(0.0, 1.0) as f32
+    } else {
+        0.0
     }
 }
 
@@ -225,6 +277,54 @@ mod tests {
         assert!(e1 > 0.9 * e0, "the fan spreads along y");
         assert_eq!(e2, 0.0, "2 mm off the sheet is dark");
         assert!(s.centre_hit(0.0).is_some_and(|p| p.length() < 1e-3));
+    }
+
+    /// The closed form matches a fine numeric average over the footprint, for lines thinner
+    /// and wider than the footprint, tiny and long edges, on and off the line; and the
+    /// profile's integral across the sheet is σ√(2π) whatever the footprint (energy kept).
+    #[test]
+    fn footprint_average_is_exact_and_keeps_the_lines_energy() {
+        let sigma = 0.2f32;
+        let numeric = |d: f32, a: f32, b: f32| {
+            let n = 400;
+            let mut sum = 0.0f64;
+            for i in 0..n {
+                for j in 0..n {
+                    let u = (i as f32 + 0.5) / n as f32 - 0.5;
+                    let v = (j as f32 + 0.5) / n as f32 - 0.5;
+                    let x = (d + u * a + v * b) as f64;
+                    sum += (-0.5 * x * x / (sigma as f64).powi(2)).exp();
+                }
+            }
+            sum / (n * n) as f64
+        };
+        for (d, a, b) in [
+            (0.0, 0.0, 0.0),
+            (0.1, 0.0, 0.0),
+            (0.0, 2.0, 0.0),
+            (0.3, 2.0, 1e-5),
+            (0.0, 2.0, 1.5),
+            (-0.7, 1.2, -0.8),
+            (0.05, 0.1, 0.05),
+            (1.3, 2.0, 1.0),
+            (5.0, 0.5, 0.5),
+        ] {
+            let exact = profile_over_footprint(d, a, b, sigma) as f64;
+            let approx = numeric(d, a, b);
+            assert!(
+                (exact - approx).abs() < 2e-4 + 1e-3 * approx,
+                "d {d} a {a} b {b}: {exact} vs {approx}"
+            );
+        }
+        for (a, b) in [(0.0, 0.0), (1.5, 0.0), (1.5, 0.7), (0.01, 3.0)] {
+            let step = 0.005;
+            let total: f64 = (-2000..=2000)
+                .map(|k| profile_over_footprint(k as f32 * step, a, b, sigma) as f64 * step as f64)
+                .sum();
+            let expected = sigma as f64 * (2.0 * std::f64::consts::PI).sqrt();
+            assert!((total / expected - 1.0).abs() < 1e-3, "{a} {b}: {total}");
+        }
+        assert_eq!(profile_over_footprint(f32::NAN, 1.0, 1.0, sigma), 0.0);
     }
 
     #[test]

@@ -47,6 +47,10 @@ pub struct Footprint<'f> {
     /// The unit rays one sample step to the right and one down: computed only for points
     /// near the laser sheet, which alone needs them.
     pub neighbours: &'f dyn Fn() -> (Vec3A, Vec3A),
+    /// Where the sample lies in its stratum, in steps from the stratum's centre (its jitter;
+    /// zero for one centred sample per pixel): the laser line is integrated over the stratum,
+    /// so a pixel's strata tile it exactly.
+    pub offset: (f32, f32),
 }
 
 /// Settings that decide how a frame is shaded.
@@ -359,8 +363,9 @@ impl<'a> Scene<'a> {
         };
         let (dx, dy) = (fp.neighbours)();
         let (gx, gy) = (spread(dx), spread(dy));
-        // A box of width g has variance g²/12.
-        let (e, wi, r) = sheet.irradiance(h.p, (gx * gx + gy * gy) / 12.0);
+        // The profile averaged over the sample's stratum, whose edges span gx and gy.
+        let centre = fp.offset.0 * gx + fp.offset.1 * gy;
+        let (e, wi, r) = sheet.irradiance_over(h.p, centre, gx, gy);
         let cos_i = h.n.dot(wi);
         if e.is_nan() || e <= 1.0e-4 || cos_i.is_nan() || cos_i <= 0.0 {
             return Vec3A::ZERO;
@@ -539,10 +544,15 @@ impl<'a> Scene<'a> {
                 continue;
             };
             let neighbours = || (ray(sub, 1, px + step, py), ray(sub, 2, px, py + step));
+            let (cx, cy) = (
+                x as f32 + ((sub % side) as f32 + 0.5) * step,
+                y as f32 + ((sub / side) as f32 + 0.5) * step,
+            );
             let footprint = Footprint {
                 origin: pose.origin,
                 angle,
                 neighbours: &neighbours,
+                offset: ((px - cx) / step, (py - cy) / step),
             };
             sum += self.shade(&h, -d, &footprint, sub, pixel, rays);
         }

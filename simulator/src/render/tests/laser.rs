@@ -72,3 +72,57 @@ fn laser_line_on_the_raised_plane_is_displaced() {
         "the sheet meets the two planes at different image rows"
     );
 }
+
+/// Prints how a laser frame converges with the sample count (run with `--ignored
+/// --nocapture`, release): relative RMSE of spp_side 1–8 against 16 on `planes` at 256×192.
+#[test]
+#[ignore = "convergence report, not a check"]
+fn laser_line_convergence_report() {
+    let render = |side: u32| {
+        let mut rig = parse_rig(BUILTIN_LIGHTSTAGE, "test.toml").expect("rig");
+        for c in &mut rig.cameras {
+            c.width = 256;
+            c.height = 192;
+        }
+        SimSpec::edit(&mut rig, |s| {
+            s.sample = "planes".into();
+            s.quality = "standard".into();
+            s.knobs.spp_side = Some(side);
+            s.knobs.bounces = Some(0);
+        })
+        .expect("sim");
+        let r = Renderer::new(&rig).expect("renderer");
+        let w = WorldSnapshot {
+            laser: Some(LaserBeam {
+                colour_nm: 650,
+                tilt_deg: 0.0,
+                mount_elevation_deg: 45.0,
+            }),
+            ..world("planes", &[])
+        };
+        r.radiance(&w, "cam4").expect("render").rgb
+    };
+    let reference = render(16);
+    let mean = reference.iter().map(|&v| v as f64).sum::<f64>() / reference.len() as f64;
+    for side in [1, 2, 4, 8] {
+        let img = render(side);
+        let (mut se, mut worst, mut at) = (0.0f64, 0.0f64, 0usize);
+        for (i, (a, b)) in img.iter().zip(&reference).enumerate() {
+            let d = (*a as f64 - *b as f64).abs();
+            se += d * d;
+            if d > worst {
+                worst = d;
+                at = i / 3;
+            }
+        }
+        let rmse = (se / img.len() as f64).sqrt();
+        println!(
+            "spp_side {side}: rel RMSE {:.2}%, worst {worst:.3} at ({}, {}): {:?} vs {:?}",
+            100.0 * rmse / mean,
+            at % 256,
+            at / 256,
+            &img[at * 3..at * 3 + 3],
+            &reference[at * 3..at * 3 + 3]
+        );
+    }
+}
