@@ -15,6 +15,7 @@
 //! | [`layout`] | run directory naming and the paths inside a run |
 //! | [`manifest`] | the run manifest |
 //! | [`frame_meta`] | per-frame metadata and frame file names |
+//! | [`frame_write`] | encoding and durably writing one frame's files, the writer pool |
 //! | [`atomic`] | temp → fsync → rename → fsync dir |
 //! | [`checksum`] | SHA-256 of frame files |
 //! | [`png16`] | 16-bit RGB PNG with iTXt metadata |
@@ -63,6 +64,7 @@ pub mod exr_file;
 pub mod exr_hdr;
 pub mod exr_planes;
 pub mod frame_meta;
+pub mod frame_write;
 pub mod hdr_merge;
 pub mod index;
 pub mod layout;
@@ -82,6 +84,7 @@ pub use error::StorageError;
 pub use frame_meta::{
     FrameKind, FrameMeta, FramePixels, FrameToWrite, frame_file_name, ground_truth_file_name,
 };
+pub use frame_write::RawCompression;
 pub use hdr_merge::{HdrImage, merge_bracket};
 pub use index::{RunStatus, StepRecord, StoredFrame, StoredGroundTruth};
 pub use manifest::{Manifest, SimManifest};
@@ -90,4 +93,4 @@ pub use query::{
     FramePage, FrameQuery, JournalStep, JournalSummary, RecordedFile, RecordedKind, RunRow,
 };
 pub use reader::{RunReader, read_manifest};
-pub use run_store::{RawCompression, RunStore};
+pub use run_store::RunStore;
