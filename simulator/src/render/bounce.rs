@@ -19,7 +19,7 @@ use super::irradiance::DirectLight;
 use super::rng::{hash3, unit_f32};
 use super::shadow::shadow_origin;
 use super::surface::Surface;
-use super::texgrid::TexGrid;
+use super::texgrid::{LitTexels, TexGrid};
 
 /// Most texels per side of the bounce grid.
 pub const MAX_TEXELS: usize = 256;
@@ -54,11 +54,18 @@ pub struct BounceStats {
 #[derive(Debug, Clone)]
 pub struct BounceMap {
     indirect: TexGrid,
+    /// Where `indirect` holds light.
+    lit: LitTexels,
     /// What it cost.
     pub stats: BounceStats,
 }
 
 impl BounceMap {
+    /// True when [`Self::irradiance_at`] is exactly zero over [x0, x1] × [y0, y1] mm.
+    pub fn dark_over(&self, x: (f32, f32), y: (f32, f32)) -> bool {
+        self.lit.dark_over(x, y)
+    }
+
     /// Indirect irradiance (all simulated bounces) at (x, y), per channel.
     #[inline]
     pub fn irradiance_at(&self, x: f32, y: f32) -> Vec3A {
@@ -153,6 +160,7 @@ pub fn compute(
         radiance = next;
     }
     Some(BounceMap {
+        lit: map.lit_texels(),
         indirect: map,
         stats: BounceStats {
             texels: n,

@@ -117,7 +117,13 @@ impl LaserSheet {
     /// of any surface at `p`.
     #[inline]
     pub fn reach(&self, p: Vec3A, eye: Vec3A, angle: f32, cos_view: f32) -> f32 {
-        let t = (p - eye).length();
+        self.reach_from((p - eye).length(), angle, cos_view)
+    }
+
+    /// [`Self::reach`] for a point `t` mm from the eye: grows with `t`, shrinks with the
+    /// cosine (so the largest `t` and smallest cosine of a set bound all of theirs).
+    #[inline]
+    pub fn reach_from(&self, t: f32, angle: f32, cos_view: f32) -> f32 {
         3.0 * self.half_width_mm + 2.0 * t * angle / cos_view.max(0.05)
     }
 

@@ -24,6 +24,7 @@
 
 pub mod bounce;
 pub mod config;
+pub mod dark_spans;
 pub mod effects;
 pub mod error;
 pub mod fft;
@@ -51,6 +52,7 @@ pub mod surface;
 pub mod texgrid;
 
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
@@ -88,6 +90,9 @@ pub struct Renderer {
     lens_tables: pixel_samples::LensTables,
     /// Each camera view's primary hits, kept while only the light changes.
     primary_hits: primary_hits::PrimaryHits,
+    /// Runs of pixels laser frames skipped as black (see [`dark_spans`]), counted for tests
+    /// and benchmarks.
+    dark_spans_skipped: AtomicU64,
     /// The rig as built: nominal unless `[sim.as_built]` asks for deviations.
     as_built: AsBuilt,
 }
@@ -154,6 +159,7 @@ impl Renderer {
             passes: TransportCaches::default(),
             lens_tables: pixel_samples::LensTables::default(),
             primary_hits: primary_hits::PrimaryHits::default(),
+            dark_spans_skipped: AtomicU64::new(0),
         })
     }
 
@@ -216,6 +222,7 @@ impl Renderer {
         let response = self.as_built.camera(&cam.id).sensor_response();
         let sensor =
             Sensor::new(cam.bit_depth, exposure_s, gain, noise_seed).with_response(response);
+        let dark = sensor.dark_levels();
         let mut pixels = vec![0u16; radiance.rgb.len()];
         let width = cam.width as usize;
         pixels
@@ -226,7 +233,8 @@ impl Renderer {
                 for x in 0..width {
                     let index = (y * width + x) as u64;
                     let rgb = [rad[x * 3], rad[x * 3 + 1], rad[x * 3 + 2]];
-                    row[x * 3..x * 3 + 3].copy_from_slice(&sensor.digitise_rgb(rgb, index));
+                    row[x * 3..x * 3 + 3]
+                        .copy_from_slice(&sensor.digitise_rgb_with(&dark, rgb, index));
                 }
             });
         let mut notes = radiance.notes;
@@ -244,6 +252,12 @@ impl Renderer {
             map.remove("light_integrated");
         }
         Ok(Rendered { pixels, notes })
+    }
+
+    /// Runs of [`primary_hits::SPAN`] pixels that laser frames have skipped as black since
+    /// this renderer was made: how much of a sweep the kept hits spare.
+    pub fn dark_spans_skipped(&self) -> u64 {
+        self.dark_spans_skipped.load(Ordering::Relaxed)
     }
 
     /// The noise-free radiance camera `camera_id` sees of `world`, in reference units (white
@@ -428,10 +442,22 @@ impl Renderer {
             } else {
                 None
             };
+            // A laser frame skips the runs of pixels the sheet cannot reach.
+            let dark = hits.as_deref().and_then(|h| {
+                let spans = scene.dark_spans(&pose, h)?;
+                let skipped = spans.iter().filter(|&&d| d).count() as u64;
+                self.dark_spans_skipped
+                    .fetch_add(skipped, Ordering::Relaxed);
+                Some((spans, h.spans_per_row()))
+            });
             let (rgb, rays) = render_rows(
                 &pose,
                 |x, y, rays| scene.pixel_with(&pose, lens.as_deref(), hits.as_deref(), x, y, rays),
-                |_, _| lit,
+                |x, y| {
+                    lit && !dark
+                        .as_ref()
+                        .is_some_and(|(d, per_row)| dark_spans::in_dark_span(d, *per_row, x, y))
+                },
             );
             (rgb, rays, None)
         };
@@ -474,9 +500,13 @@ impl Renderer {
         let key = format!("{}|{pose:?}|{side}|{tubes}", relief_key(sample));
         self.primary_hits
             .get(key, (pose.width, pose.height, side), || {
-                primary_hits::HitTable::build(pose.width, pose.height, side, |x, y, sub| {
-                    scene.locate_sample(pose, lens, x, y, sub)
-                })
+                primary_hits::HitTable::build(
+                    pose.width,
+                    pose.height,
+                    side,
+                    pose.origin,
+                    |x, y, sub| scene.locate_sample(pose, lens, x, y, sub),
+                )
             })
     }
 

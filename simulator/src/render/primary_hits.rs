@@ -7,10 +7,14 @@
 //! pose, sampling, the tube's body), kept once a view is asked for a second time. The shading
 //! point is rebuilt from the kept distance by
 //! the same code as an uncached frame, so frames are bit-identical with or without the table.
+//! Each run of [`SPAN`] pixels along a row also keeps the bounds of its hit points
+//! ([`SpanBounds`]), so a laser frame can skip the runs the sheet cannot reach
+//! (`dark_spans.rs`).
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 
+use glam::Vec3A;
 use rayon::prelude::*;
 
 use super::kept::Kept;
@@ -68,36 +72,109 @@ impl PackedHit {
     };
 }
 
-/// Every sample's primary hit for one camera view, `side`² samples per pixel, row-major.
+/// Pixels along a row that share one [`SpanBounds`].
+pub const SPAN: u32 = 16;
+
+/// The hit points of one run of [`SPAN`] pixels (fewer at a row's end), all their samples:
+/// where they lie, how far from the eye and how obliquely seen, which bounds how close a
+/// laser sheet must pass to light any of them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SpanBounds {
+    /// Corner of the box holding every hit point (sample frame, mm); +∞ when nothing was hit.
+    pub lo: Vec3A,
+    /// Opposite corner; −∞ when nothing was hit.
+    pub hi: Vec3A,
+    /// Largest distance from the eye to a hit point, mm.
+    pub far: f32,
+    /// Smallest `cos_view` of a hit.
+    pub cos_min: f32,
+    /// Whether a sample hit the relief (the only surface the bounce pass lights).
+    pub relief: bool,
+}
+
+impl SpanBounds {
+    /// A run with no hit yet.
+    const EMPTY: SpanBounds = SpanBounds {
+        lo: Vec3A::INFINITY,
+        hi: Vec3A::NEG_INFINITY,
+        far: 0.0,
+        cos_min: f32::INFINITY,
+        relief: false,
+    };
+
+    /// Whether no sample of the run hit a surface (its pixels are black under any light).
+    pub fn is_empty(&self) -> bool {
+        self.lo.x > self.hi.x
+    }
+
+    /// Takes hit `hit` at point `p`, seen from `eye`, into the bounds.
+    fn include(&mut self, hit: &PackedHit, p: Vec3A, eye: Vec3A) {
+        if hit.kind == HitKind::Nothing {
+            return;
+        }
+        self.lo = self.lo.min(p);
+        self.hi = self.hi.max(p);
+        self.far = self.far.max((p - eye).length());
+        self.cos_min = self.cos_min.min(hit.cos_view);
+        self.relief |= hit.kind == HitKind::Relief;
+    }
+}
+
+/// Every sample's primary hit for one camera view, `side`² samples per pixel, row-major, and
+/// the bounds of each run of [`SPAN`] pixels.
 #[derive(Debug)]
 pub struct HitTable {
     side: u32,
     width: u32,
     hits: Vec<PackedHit>,
+    spans: Vec<SpanBounds>,
 }
 
 impl HitTable {
-    /// Computes the table for a `width` × `height` camera sampled `side` × `side`, rows in
-    /// parallel; `locate(x, y, sub)` is the primary hit of sample `sub` of pixel (x, y).
+    /// Computes the table for a `width` × `height` camera at `eye` sampled `side` × `side`,
+    /// rows in parallel; `locate(x, y, sub)` is the primary hit of sample `sub` of pixel
+    /// (x, y) and its point, computed as the renderer rebuilds it from the kept distance.
     pub fn build(
         width: u32,
         height: u32,
         side: u32,
-        locate: impl Fn(u32, u32, u32) -> PackedHit + Sync,
+        eye: Vec3A,
+        locate: impl Fn(u32, u32, u32) -> (PackedHit, Vec3A) + Sync,
     ) -> HitTable {
         let per_pixel = (side * side) as usize;
         let row = width as usize * per_pixel;
+        let spans_per_row = spans_per_row(width);
         let mut hits = vec![PackedHit::NOTHING; row * height as usize];
+        let mut spans = vec![SpanBounds::EMPTY; spans_per_row * height as usize];
         hits.par_chunks_mut(row.max(1))
+            .zip(spans.par_chunks_mut(spans_per_row.max(1)))
             .enumerate()
-            .for_each(|(y, out)| {
+            .for_each(|(y, (out, bounds))| {
                 for x in 0..width {
+                    let span = &mut bounds[(x / SPAN) as usize];
                     for sub in 0..side * side {
-                        out[x as usize * per_pixel + sub as usize] = locate(x, y as u32, sub);
+                        let (hit, p) = locate(x, y as u32, sub);
+                        span.include(&hit, p, eye);
+                        out[x as usize * per_pixel + sub as usize] = hit;
                     }
                 }
             });
-        HitTable { side, width, hits }
+        HitTable {
+            side,
+            width,
+            hits,
+            spans,
+        }
+    }
+
+    /// The bounds of every run of [`SPAN`] pixels, row-major ([`Self::spans_per_row`] a row).
+    pub fn spans(&self) -> &[SpanBounds] {
+        &self.spans
+    }
+
+    /// Runs of [`SPAN`] pixels a row holds (the last may be shorter).
+    pub fn spans_per_row(&self) -> usize {
+        spans_per_row(self.width)
     }
 
     /// The hit of sample `sub` of pixel (x, y).
@@ -113,11 +190,20 @@ impl HitTable {
     }
 }
 
+/// Runs of [`SPAN`] pixels in a row `width` pixels wide.
+fn spans_per_row(width: u32) -> usize {
+    width.div_ceil(SPAN) as usize
+}
+
 /// Bytes a table of `width` × `height` pixels at `side`² samples holds.
 fn table_bytes(width: u32, height: u32, side: u32) -> usize {
     (width as usize * height as usize)
         .saturating_mul((side * side) as usize)
         .saturating_mul(std::mem::size_of::<PackedHit>())
+        .saturating_add(
+            (spans_per_row(width) * height as usize)
+                .saturating_mul(std::mem::size_of::<SpanBounds>()),
+        )
 }
 
 /// Views remembered as seen once: a table is kept only for a view asked for again, so
@@ -194,10 +280,17 @@ mod tests {
     use super::*;
 
     fn table(w: u32, h: u32, side: u32) -> HitTable {
-        HitTable::build(w, h, side, |x, y, sub| PackedHit {
-            t: (x * 1000 + y * 10 + sub) as f32,
-            cos_view: 1.0,
-            kind: HitKind::Relief,
+        HitTable::build(w, h, side, Vec3A::ZERO, |x, y, sub| {
+            let hit = PackedHit {
+                t: (x * 1000 + y * 10 + sub) as f32,
+                cos_view: 1.0 / (1 + x) as f32,
+                kind: if y == 0 {
+                    HitKind::Nothing
+                } else {
+                    HitKind::Relief
+                },
+            };
+            (hit, Vec3A::new(x as f32, y as f32, sub as f32))
         })
     }
 
@@ -208,6 +301,27 @@ mod tests {
         for (x, y, sub) in [(0, 0, 0), (4, 2, 3), (2, 1, 1)] {
             assert_eq!(t.get(x, y, sub).t, (x * 1000 + y * 10 + sub) as f32);
         }
+    }
+
+    /// Each run of SPAN pixels bounds its own hits; a row that hit nothing is empty.
+    #[test]
+    fn each_span_bounds_its_hit_points() {
+        let t = table(20, 3, 2);
+        assert_eq!(t.spans_per_row(), 2);
+        assert_eq!(t.spans().len(), 6);
+        assert!(t.spans()[0].is_empty() && t.spans()[1].is_empty());
+        let [a, b] = [t.spans()[4], t.spans()[5]];
+        assert_eq!(
+            (a.lo, a.hi),
+            (Vec3A::new(0.0, 2.0, 0.0), Vec3A::new(15.0, 2.0, 3.0))
+        );
+        assert_eq!(
+            (b.lo, b.hi),
+            (Vec3A::new(16.0, 2.0, 0.0), Vec3A::new(19.0, 2.0, 3.0))
+        );
+        assert_eq!(b.cos_min, 1.0 / 20.0);
+        assert_eq!(a.far, Vec3A::new(15.0, 2.0, 3.0).length());
+        assert!(a.relief && !a.is_empty());
     }
 
     /// A view seen once keeps nothing; asked again, its table is built and kept.

@@ -120,3 +120,45 @@ fn the_reflectometer_tube_moving_over_the_sample_is_bit_identical() {
         .collect();
     same_with_and_without_kept_hits(&rig, Quality::Preview, &worlds);
 }
+
+/// A sweep frame at one view skips most of its pixels as black, and only black ones: its
+/// noise-free radiance is bit-identical to a frame rendered from scratch.
+#[test]
+fn a_sweep_frame_skips_most_of_its_pixels_and_only_black_ones() {
+    let mut rig = rig(BUILTIN_LIGHTSTAGE, "bumps", 0.0);
+    for c in &mut rig.cameras {
+        c.width = 160;
+        c.height = 120;
+    }
+    let kept = Renderer::with_knobs(&rig, Quality::Preview.knobs()).expect("renderer");
+    let mut scratch = Renderer::with_knobs(&rig, Quality::Preview.knobs()).expect("renderer");
+    scratch.primary_hits = primary_hits::PrimaryHits::with_budget(0);
+    let view = world("bumps", 30.0);
+    let spans = (rig.cameras.len() * 120 * 160usize.div_ceil(primary_hits::SPAN as usize)) as u64;
+    for (step, tilt) in [4.0, 2.0, 0.0, -2.0, -4.0].into_iter().enumerate() {
+        let before = kept.dark_spans_skipped();
+        for cam in &rig.cameras {
+            let w = laser(view.clone(), tilt);
+            let a = kept.radiance(&w, &cam.id).expect("render");
+            let b = scratch.radiance(&w, &cam.id).expect("render");
+            assert!(a.rgb == b.rgb, "tilt {tilt}, {}: radiance differs", cam.id);
+            assert!(
+                a.rgb.iter().any(|&v| v > 0.0),
+                "tilt {tilt}, {}: the line",
+                cam.id
+            );
+        }
+        let skipped = kept.dark_spans_skipped() - before;
+        // The first step only sees the view; the second keeps its hits, and from then on
+        // the frames skip what the sheet cannot reach.
+        if step == 0 {
+            assert_eq!(skipped, 0, "step {step}");
+        } else {
+            assert!(
+                skipped * 2 > spans,
+                "step {step}: {skipped} of {spans} runs skipped"
+            );
+        }
+    }
+    assert_eq!(scratch.dark_spans_skipped(), 0);
+}

@@ -6,6 +6,7 @@ use std::sync::Arc;
 use glam::Vec3A;
 
 use super::bounce::BounceMap;
+use super::dark_spans;
 use super::geometry::CameraPose;
 use super::laser::LaserSheet;
 use super::lights::{Emitter, HALOGEN_RADIUS_MM, Light, TURNTABLE_RADIUS_MM, TubeBody};
@@ -559,7 +560,17 @@ impl<'a> Scene<'a> {
         sum / (side * side) as f32
     }
 
-    /// The primary hit of sample `sub` of pixel (x, y) of `pose`: what a [`HitTable`] keeps.
+    /// Per run of pixels of `pose` (see [`dark_spans::dark_spans`]), whether this frame leaves
+    /// it black: only for a frame lit by the laser alone whose view's hits are kept.
+    pub fn dark_spans(&self, pose: &CameraPose, hits: &HitTable) -> Option<Vec<bool>> {
+        let sheet = self.laser_alone()?;
+        let step = 1.0 / self.knobs.spp_side as f32;
+        let angle = step / pose.focal_px;
+        Some(dark_spans::dark_spans(hits, sheet, angle, self.indirect))
+    }
+
+    /// The primary hit of sample `sub` of pixel (x, y) of `pose`, what a [`HitTable`] keeps,
+    /// and its point as [`Self::pixel_with`] rebuilds it from the kept distance.
     pub fn locate_sample(
         &self,
         pose: &CameraPose,
@@ -567,7 +578,7 @@ impl<'a> Scene<'a> {
         x: u32,
         y: u32,
         sub: u32,
-    ) -> PackedHit {
+    ) -> (PackedHit, Vec3A) {
         let side = self.knobs.spp_side;
         let pixel = y as u64 * pose.width as u64 + x as u64;
         let lens = lens.filter(|t| t.covers(side, self.laser.is_some()));
@@ -580,13 +591,14 @@ impl<'a> Scene<'a> {
             sample_position(x, y, pose.width, sub, side),
         );
         let packed = self.locate(pose.origin, d);
-        match self.hit_from(pose.origin, d, packed) {
+        let hit = match self.hit_from(pose.origin, d, packed) {
             Some(h) => PackedHit {
                 cos_view: h.n.dot(-d).abs(),
                 ..packed
             },
             None => packed,
-        }
+        };
+        (hit, pose.origin + d * packed.t)
     }
 }
 

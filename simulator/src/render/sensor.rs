@@ -104,6 +104,11 @@ impl Response {
     }
 }
 
+/// The digital numbers of a pixel without light, per channel and read-noise draw (see
+/// [`Sensor::dark_levels`]).
+#[derive(Debug, Clone)]
+pub struct DarkLevels(Vec<u16>);
+
 /// Conversion from scene radiance to digital numbers for one exposure.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sensor {
@@ -201,6 +206,37 @@ impl Sensor {
         out
     }
 
+    /// Every digital number a pixel without light can read, per channel and read-noise draw,
+    /// for [`Self::digitise_rgb_with`]: built once per frame (12,288 values).
+    pub fn dark_levels(&self) -> DarkLevels {
+        let draws = 1usize << GAUSS_BITS;
+        let mut dn = vec![0u16; 3 * draws];
+        for (c, levels) in dn.chunks_exact_mut(draws).enumerate() {
+            for (k, level) in levels.iter_mut().enumerate() {
+                *level = self.dn(self.dark[c], gaussian(k as u64) as f32);
+            }
+        }
+        DarkLevels(dn)
+    }
+
+    /// [`Self::digitise_rgb`], with a dark pixel (most of a laser frame) read from `dark`, this
+    /// sensor's [`Self::dark_levels`]: the same numbers, without the arithmetic.
+    #[inline]
+    pub fn digitise_rgb_with(&self, dark: &DarkLevels, radiance: [f32; 3], pixel: u64) -> [u16; 3] {
+        if radiance != [0.0; 3] {
+            return self.digitise_rgb(radiance, pixel);
+        }
+        let shot_bits = mix64(self.key ^ pixel.wrapping_mul(0x9e37_79b9_7f4a_7c15));
+        let read_bits = mix64(shot_bits ^ 0x27d4_eb2f_1656_67c5);
+        let draws = 1usize << GAUSS_BITS;
+        let draw = |c: usize| (read_bits >> (GAUSS_BITS as usize * c)) as usize & (draws - 1);
+        [
+            dark.0[draw(0)],
+            dark.0[draws + draw(1)],
+            dark.0[2 * draws + draw(2)],
+        ]
+    }
+
     /// The digital number for `radiance` at channel `channel` (0..3) of pixel `pixel`: the
     /// value `digitise_rgb` produces for that channel.
     pub fn digitise(&self, radiance: f32, pixel: u64, channel: u64) -> u16 {
@@ -238,6 +274,25 @@ impl Sensor {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The dark levels give every pixel, lit or not, the numbers the arithmetic gives, at
+    /// several bit depths, gains and responses.
+    #[test]
+    fn dark_levels_read_as_the_arithmetic_does() {
+        let sensors = [
+            Sensor::new(12, 0.02, 1.0, 1),
+            Sensor::new(16, 0.01, 4.0, 9),
+            Sensor::new(8, 0.03, 0.5, 3).with_response(Response::Gamma([2.2, 2.0, 1.8])),
+        ];
+        for s in sensors {
+            let dark = s.dark_levels();
+            for p in 0..20_000u64 {
+                for rgb in [[0.0; 3], [0.1, 0.0, 0.0], [0.3, 0.2, 0.1]] {
+                    assert_eq!(s.digitise_rgb_with(&dark, rgb, p), s.digitise_rgb(rgb, p));
+                }
+            }
+        }
+    }
 
     #[test]
     fn reference_lamp_on_white_fills_sixty_percent() {

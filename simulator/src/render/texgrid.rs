@@ -125,6 +125,60 @@ impl TexGrid {
     }
 }
 
+/// Where a [`TexGrid`] holds light: a summed-area count of its non-zero texels, so that
+/// whether a lookup anywhere in a rectangle can return non-zero is answered at once.
+#[derive(Debug, Clone)]
+pub struct LitTexels {
+    n: usize,
+    cell: f32,
+    origin: f32,
+    /// (n + 1)² running counts: entry (i, j) counts the non-zero texels left of column i
+    /// and below row j.
+    counts: Vec<u32>,
+}
+
+impl TexGrid {
+    /// The summed-area count of this grid's non-zero texels.
+    pub fn lit_texels(&self) -> LitTexels {
+        let n = self.n;
+        let mut counts = vec![0u32; (n + 1) * (n + 1)];
+        for j in 0..n {
+            let mut row = 0u32;
+            for i in 0..n {
+                row += u32::from(self.get(i, j) != Vec3A::ZERO);
+                counts[(j + 1) * (n + 1) + i + 1] = counts[j * (n + 1) + i + 1] + row;
+            }
+        }
+        LitTexels {
+            n,
+            cell: self.cell,
+            origin: self.origin,
+            counts,
+        }
+    }
+}
+
+impl LitTexels {
+    /// True when [`TexGrid::at`] is exactly zero everywhere in [x0, x1] × [y0, y1] mm: every
+    /// texel a lookup there reads, and one more on each side against rounding, is zero.
+    /// False for bounds that are not finite.
+    pub fn dark_over(&self, (x0, x1): (f32, f32), (y0, y1): (f32, f32)) -> bool {
+        if ![x0, x1, y0, y1].iter().all(|v| v.is_finite()) {
+            return false;
+        }
+        let last = (self.n - 1) as f32;
+        let texel = |v: f32| ((v - self.origin) / self.cell - 0.5).clamp(0.0, last) as usize;
+        let range = |a: f32, b: f32| (texel(a).saturating_sub(1), (texel(b) + 2).min(self.n - 1));
+        let ((i0, i1), (j0, j1)) = (range(x0, x1), range(y0, y1));
+        if i0 > i1 || j0 > j1 {
+            return true;
+        }
+        let w = self.n + 1;
+        let at = |i: usize, j: usize| self.counts[j * w + i];
+        at(i1 + 1, j1 + 1) + at(i0, j0) == at(i0, j1 + 1) + at(i1 + 1, j0)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -175,5 +229,29 @@ mod tests {
         let (x12, _) = g.centre(12, 0);
         assert!((g.at_geometric(x12 - 0.5, 0.0).z - 0.5).abs() < 1e-6);
         assert_eq!(g.at_geometric(f32::NAN, 0.0), Vec3A::ZERO);
+    }
+
+    /// A lit texel darkens no rectangle it cannot reach and lights every one it can.
+    #[test]
+    fn lit_texels_answer_for_rectangles_exactly_where_lookups_read() {
+        let mut g = TexGrid::new(16, 32.0);
+        g.values_mut()[5 * 16 + 9] = Vec3A::new(0.0, 0.0, 2.0);
+        let lit = g.lit_texels();
+        let (cx, cy) = g.centre(9, 5);
+        for (x, y) in [(cx, cy), (cx - 1.9, cy), (cx + 1.9, cy + 1.9)] {
+            assert!(g.at(x, y) != Vec3A::ZERO);
+            assert!(!lit.dark_over((x, x), (y, y)), "({x}, {y})");
+        }
+        assert!(!lit.dark_over((-16.0, 16.0), (-16.0, 16.0)));
+        for (x, y) in [(cx - 6.1, cy), (cx, cy + 6.1), (-16.0, -16.0), (40.0, 40.0)] {
+            assert_eq!(g.at(x, y), Vec3A::ZERO);
+            assert!(lit.dark_over((x - 1.0, x), (y - 1.0, y)), "({x}, {y})");
+        }
+        assert!(!lit.dark_over((f32::NAN, 0.0), (0.0, 0.0)));
+        assert!(
+            TexGrid::new(4, 8.0)
+                .lit_texels()
+                .dark_over((-9.0, 9.0), (-9.0, 9.0))
+        );
     }
 }
