@@ -11,7 +11,8 @@
 //!
 //! Run: `cargo bench --bench frame_pipeline -- [SECONDS [RATES [WxH]]]`, e.g.
 //! `-- 600 15` (the ten minutes at the seed's 15 Hz) or `-- 60 7.5,15,30`.
-//! Prints one JSON object per rate.
+//! Prints one JSON object per rate. `STAGEHAND_FRAME_MEMORY=default` leaves the allocator's
+//! settings alone (see `stagehand_dataset::frame_memory`).
 
 // Shared with the other benchmarks; this one runs on its own real-time runtime, not `support::run`.
 #[allow(dead_code)]
@@ -206,7 +207,19 @@ fn measure(seconds: f64, rate: f64, (w, h): (u32, u32), out: &Path) -> Measured 
     }
 }
 
+/// Set to `default` to leave glibc's allocator settings as they are, for the side-by-side
+/// figure; otherwise the benchmark keeps frame memory as `stagehand` does at start.
+const ALLOCATOR_ENV: &str = "STAGEHAND_FRAME_MEMORY";
+
 fn main() {
+    // As `stagehand`'s main does, before any thread starts.
+    let allocator = if std::env::var(ALLOCATOR_ENV).is_ok_and(|v| v == "default") {
+        "glibc defaults"
+    } else if stagehand_dataset::keep_frame_memory() {
+        "frame memory kept"
+    } else {
+        "frame memory not kept (not glibc)"
+    };
     let args: Vec<String> = std::env::args()
         .skip(1)
         .filter(|a| !a.starts_with("--"))
@@ -240,6 +253,7 @@ fn main() {
                 "size": format!("{w}x{h}"),
                 "bit_depth": 16,
                 "format": "png16 fast",
+                "allocator": allocator,
                 "scratch": tmp.path(),
                 "rate_hz": rate,
                 "seconds": seconds,

@@ -63,6 +63,7 @@ pub mod error;
 pub mod exr_file;
 pub mod exr_hdr;
 pub mod exr_planes;
+pub mod frame_memory;
 pub mod frame_meta;
 pub mod frame_write;
 pub mod hdr_merge;
@@ -81,6 +82,7 @@ pub mod verify;
 mod tests;
 
 pub use error::StorageError;
+pub use frame_memory::keep_frame_memory;
 pub use frame_meta::{
     FrameKind, FrameMeta, FramePixels, FrameToWrite, frame_file_name, ground_truth_file_name,
 };

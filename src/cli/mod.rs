@@ -157,6 +157,8 @@ enum Command {
 
 /// Runs the CLI and returns the process exit code.
 pub fn main() -> i32 {
+    // Before any thread starts: frame buffers are recycled, not refaulted, at the rig's rates.
+    stagehand_dataset::keep_frame_memory();
     let cli = match Cli::try_parse() {
         Ok(c) => c,
         Err(e) => {
