@@ -39,7 +39,7 @@ use stagehand_processing::ward_fit::WardFitOptions;
 
 use super::calibrate::{processing_err, root_of, run_rig, store_err};
 use super::calibrate_reflectometer::ReflectometerRig;
-use super::process_dipole::{dipole_fits, local_inputs, local_maps};
+use super::process_dipole::{QuasiRun, dipole_fits, local_inputs, local_maps};
 use crate::session::SessionError;
 
 /// The products `process` can make.
@@ -428,30 +428,22 @@ pub fn process(args: ProcessArgs) -> Result<i32, SessionError> {
     if local {
         local_inputs(&found)?;
     }
+    let quasi = QuasiRun {
+        args: &args,
+        found: &found,
+        rig: &rig,
+        root: &root,
+        turntable: turntable.as_deref(),
+        software: &software,
+    };
     let dipole = if want(Product::Dipole) || want(Product::Exit) || want(Product::Entrance) || local
     {
-        Some(dipole_fits(
-            &args,
-            &found,
-            &rig,
-            &root,
-            turntable.as_deref(),
-            &mut store,
-            &software,
-        )?)
+        Some(dipole_fits(&quasi, &mut store)?)
     } else {
         None
     };
     let local = if local {
-        Some(local_maps(
-            &args,
-            &found,
-            &rig,
-            &root,
-            turntable.as_deref(),
-            &mut store,
-            &software,
-        )?)
+        Some(local_maps(&quasi, &mut store)?)
     } else {
         None
     };

@@ -15,16 +15,31 @@ use super::calibrate::processing_err;
 use super::process::{Calibrations, ProcessArgs, Product, cameras_geometry, with_progress};
 use crate::session::SessionError;
 
+/// What both passes over a quasi-homogeneous run read: the command's arguments, the
+/// calibrations found, the run's rig and directory, its turntable axis and the software name
+/// the products record.
+pub(super) struct QuasiRun<'a> {
+    pub args: &'a ProcessArgs,
+    pub found: &'a Calibrations,
+    pub rig: &'a stagehand_devices::rig::RigSpec,
+    pub root: &'a std::path::Path,
+    pub turntable: Option<&'a str>,
+    pub software: &'a str,
+}
+
 /// The dipole fits of a quasi-homogeneous run.
 pub(super) fn dipole_fits(
-    args: &ProcessArgs,
-    found: &Calibrations,
-    rig: &stagehand_devices::rig::RigSpec,
-    root: &std::path::Path,
-    turntable: Option<&str>,
+    run: &QuasiRun<'_>,
     store: &mut ProductStore,
-    software: &str,
 ) -> Result<DipoleSummary, SessionError> {
+    let QuasiRun {
+        args,
+        found,
+        rig,
+        root,
+        turntable,
+        software,
+    } = *run;
     let (responses, response_id) = found.response.as_ref().ok_or_else(|| {
         SessionError::Io(
             "dipole needs a response calibration: --calibration response-… (make one with `stagehand calibrate response`)".into(),
@@ -99,14 +114,17 @@ pub(super) fn local_inputs(found: &Calibrations) -> Result<(&ColourSet, &str), S
 
 /// The local reflectance function of a quasi-homogeneous run's step 3, after its dipole pass.
 pub(super) fn local_maps(
-    args: &ProcessArgs,
-    found: &Calibrations,
-    rig: &stagehand_devices::rig::RigSpec,
-    root: &std::path::Path,
-    turntable: Option<&str>,
+    run: &QuasiRun<'_>,
     store: &mut ProductStore,
-    software: &str,
 ) -> Result<LocalSummary, SessionError> {
+    let QuasiRun {
+        args,
+        found,
+        rig,
+        root,
+        turntable,
+        software,
+    } = *run;
     let (colour, colour_id) = local_inputs(found)?;
     let (responses, response_id) = found.response.as_ref().ok_or_else(|| {
         SessionError::Io(
