@@ -1,7 +1,8 @@
 //! What a raw frame costs to store, per format (issue 16: choose the frame format by
 //! measurement): one 1024×768 16-bit frame of the simulated cameras' test pattern (a moving
 //! grating with 4 bits of sensor-like noise) encoded on one core as the dataset's PNG
-//! (`encode_png16`: the fastest deflate and the Up filter, with its sBIT and metadata), PNG
+//! (`encode_png16`: the fastest deflate and the Up filter, with its sBIT and metadata), the
+//! dataset's stored PNG (what a writer behind the cameras writes every other frame as), PNG
 //! with fast deflate and the adaptive filter (the dataset's format before), with fast deflate
 //! and no filter, with the fastest deflate and the Up filter, stored PNG (no compression), and
 //! the raw big-endian samples; then its SHA-256 and one durable write (write, fsync) of each result to the scratch
@@ -14,7 +15,7 @@ use std::io::Write;
 use std::time::Instant;
 
 use sha2::{Digest, Sha256};
-use stagehand_dataset::png16::encode_png16;
+use stagehand_dataset::png16::{Deflate, encode_png16, encode_png16_with};
 use stagehand_simulator::sim_devices::test_pattern;
 
 const WIDTH: u32 = 1024;
@@ -49,6 +50,13 @@ fn main() {
         (
             "png16 as the dataset stores it",
             Box::new(|p| encode_png16("bench", WIDTH, HEIGHT, p, 16, "{}").expect("png16")),
+        ),
+        (
+            "png16 stored, as the dataset stores every other frame when behind",
+            Box::new(|p| {
+                encode_png16_with("bench", WIDTH, HEIGHT, p, 16, "{}", Deflate::Stored)
+                    .expect("png16")
+            }),
         ),
         (
             "png fast deflate, adaptive filter (stored until 2026-12)",
