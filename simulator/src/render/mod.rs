@@ -498,8 +498,9 @@ impl Renderer {
     ) -> Option<Arc<primary_hits::HitTable>> {
         let side = knobs.spp_side;
         let key = format!("{}|{pose:?}|{side}|{tubes}", relief_key(sample));
+        let at_first_sight = scene.lit_by_laser_alone();
         self.primary_hits
-            .get(key, (pose.width, pose.height, side), || {
+            .get(key, (pose.width, pose.height, side), at_first_sight, || {
                 primary_hits::HitTable::build(
                     pose.width,
                     pose.height,

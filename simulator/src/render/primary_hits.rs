@@ -4,7 +4,8 @@
 //! sub-pixel sample, the distance to the hit, what was hit and the cosine of the view there
 //! (which bounds where the laser can light it), keyed on everything the
 //! intersection depends on (sample, relief, camera pose with the turntable angle and fixture
-//! pose, sampling, the tube's body), kept once a view is asked for a second time. The shading
+//! pose, sampling, the tube's body), kept once a view is asked for a second time, or at once
+//! for a frame lit by the laser alone (a sweep follows). The shading
 //! point is rebuilt from the kept distance by
 //! the same code as an uncached frame, so frames are bit-identical with or without the table.
 //! Each run of [`SPAN`] pixels along a row also keeps the bounds of its hit points
@@ -206,8 +207,9 @@ fn table_bytes(width: u32, height: u32, side: u32) -> usize {
         )
 }
 
-/// Views remembered as seen once: a table is kept only for a view asked for again, so
-/// frames that each see a new view (a turntable turning every step) keep nothing.
+/// Views remembered as seen once: a lamp frame's table is kept only for a view asked for
+/// again, so lamp frames that each see a new view (a turntable turning every step) keep
+/// nothing.
 const SEEN_VIEWS: usize = 64;
 
 /// The hit tables of one renderer's camera views, keyed on an exact description of each view.
@@ -234,16 +236,19 @@ impl PrimaryHits {
     }
 
     /// The table for the view described exactly by `key`, `width` × `height` pixels sampled
-    /// `side` × `side`, built by `build` when the view is asked for the second time; `None`
-    /// the first time, or when too large to keep (the caller intersects per frame).
+    /// `side` × `side`, built by `build` when the view is asked for the second time, or the
+    /// first when `at_first_sight` (a frame lit by the laser alone: a sweep follows, and the
+    /// table spares its first frame the shading beyond the sheet); `None` otherwise, or when
+    /// too large to keep (the caller intersects per frame).
     pub fn get(
         &self,
         key: String,
         (width, height, side): (u32, u32, u32),
+        at_first_sight: bool,
         build: impl FnOnce() -> HitTable,
     ) -> Option<Arc<HitTable>> {
         let bytes = table_bytes(width, height, side);
-        if !self.tables.contains(&key) {
+        if !at_first_sight && !self.tables.contains(&key) {
             let mut seen = self
                 .seen
                 .lock()
@@ -329,16 +334,31 @@ mod tests {
     fn a_table_is_kept_from_a_views_second_frame() {
         let hits = PrimaryHits::default();
         let dims = (5, 3, 1);
-        assert!(hits.get("a".into(), dims, || table(5, 3, 1)).is_none());
-        assert!(hits.get("b".into(), dims, || table(5, 3, 1)).is_none());
+        assert!(
+            hits.get("a".into(), dims, false, || table(5, 3, 1))
+                .is_none()
+        );
+        assert!(
+            hits.get("b".into(), dims, false, || table(5, 3, 1))
+                .is_none()
+        );
         assert!(hits.is_empty());
         let a = hits
-            .get("a".into(), dims, || table(5, 3, 1))
+            .get("a".into(), dims, false, || table(5, 3, 1))
             .expect("second frame");
         let again = hits
-            .get("a".into(), dims, || panic!("built twice"))
+            .get("a".into(), dims, false, || panic!("built twice"))
             .expect("kept");
         assert!(Arc::ptr_eq(&a, &again));
         assert_eq!(hits.len(), 1);
+        // A laser frame keeps its view's table at once.
+        let c = hits
+            .get("c".into(), dims, true, || table(5, 3, 1))
+            .expect("first sight");
+        let again = hits
+            .get("c".into(), dims, false, || panic!("built twice"))
+            .expect("kept");
+        assert!(Arc::ptr_eq(&c, &again));
+        assert_eq!(hits.len(), 2);
     }
 }

@@ -135,7 +135,7 @@ fn a_sweep_frame_skips_most_of_its_pixels_and_only_black_ones() {
     scratch.primary_hits = primary_hits::PrimaryHits::with_budget(0);
     let view = world("bumps", 30.0);
     let spans = (rig.cameras.len() * 120 * 160usize.div_ceil(primary_hits::SPAN as usize)) as u64;
-    for (step, tilt) in [4.0, 2.0, 0.0, -2.0, -4.0].into_iter().enumerate() {
+    for tilt in [4.0, 2.0, 0.0, -2.0, -4.0] {
         let before = kept.dark_spans_skipped();
         for cam in &rig.cameras {
             let w = laser(view.clone(), tilt);
@@ -149,16 +149,12 @@ fn a_sweep_frame_skips_most_of_its_pixels_and_only_black_ones() {
             );
         }
         let skipped = kept.dark_spans_skipped() - before;
-        // The first step only sees the view; the second keeps its hits, and from then on
-        // the frames skip what the sheet cannot reach.
-        if step == 0 {
-            assert_eq!(skipped, 0, "step {step}");
-        } else {
-            assert!(
-                skipped * 2 > spans,
-                "step {step}: {skipped} of {spans} runs skipped"
-            );
-        }
+        // A laser frame keeps its view's hits at first sight: every frame skips what the
+        // sheet cannot reach.
+        assert!(
+            skipped * 2 > spans,
+            "tilt {tilt}: {skipped} of {spans} runs skipped"
+        );
     }
     assert_eq!(scratch.dark_spans_skipped(), 0);
 }

@@ -159,6 +159,11 @@ impl<'a> Scene<'a> {
             .filter(|_| self.lights.is_empty() && self.subsurface.is_none())
     }
 
+    /// Whether the laser sheet is the frame's only source (see `laser_alone`).
+    pub fn lit_by_laser_alone(&self) -> bool {
+        self.laser_alone().is_some()
+    }
+
     /// The lit lamps.
     pub fn lights(&self) -> &[Light] {
         &self.lights
