@@ -3,7 +3,9 @@
 //! 8 cameras concurrently on a rayon pool — for each quality preset, for the `bumps` sample lit
 //! by one lamp (lamp1 at 10°, so shadows are on) and scanned by the laser (lamps off), each
 //! from a new view every step; and, at one view, a laser sweep and a lamp sequence (only the
-//! light changes: what depends on the geometry alone is reused).
+//! light changes: what depends on the geometry alone is reused), and the lamp sequence of
+//! `btf.rhai` (`bracket`: each lamp an HDR bracket of three exposures, a step per exposure,
+//! the bracket's exposures sharing one trace; use a multiple of 3 steps).
 //!
 //! Every preset runs in a fresh process (this binary re-executes itself with
 //! `STAGEHAND_RENDER_BENCH_CHILD=<preset>`), so the memory peak (`VmHWM` from
@@ -16,8 +18,8 @@
 //! Run: `cargo bench -p stagehand-simulator --bench render` or `bench/render.sh`. Subsets:
 //!
 //! - `STAGEHAND_RENDER_BENCH=preview,standard` — presets (default: all three);
-//! - `STAGEHAND_RENDER_BENCH_SCENES=lamp` — any of `lamp`, `laser`, `sweep`, `lamps`
-//!   (default: all);
+//! - `STAGEHAND_RENDER_BENCH_SCENES=lamp` — any of `lamp`, `laser`, `sweep`, `lamps`,
+//!   `bracket` (default: all);
 //! - `STAGEHAND_RENDER_BENCH_THREADS=2` — pool sizes (default: `1,2`);
 //! - `STAGEHAND_RENDER_BENCH_REPS=3` — timed steps per row (default: 5 preview, 3 standard,
 //!   1 reference).
@@ -163,8 +165,22 @@ fn rig(preset: &str) -> Result<RigSpec, Box<dyn std::error::Error>> {
 
 /// Scenes measured: a new view per step (`lamp`, `laser`: the turntable turns 15° between
 /// steps) or a sequence at one view (`sweep`: the laser tilts by 0.05° a step; `lamps`: one
-/// lamp after another), where only the light changes.
-const SCENES: [&str; 4] = ["lamp", "laser", "sweep", "lamps"];
+/// lamp after another; `bracket`: one lamp after another, each for the three exposures of
+/// [`BRACKET_S`]), where only the light changes.
+const SCENES: [&str; 5] = ["lamp", "laser", "sweep", "lamps", "bracket"];
+
+/// The HDR bracket of `sequences/btf.rhai`, in seconds.
+const BRACKET_S: [f64; 3] = [0.005, 0.02, 0.08];
+
+/// The exposure of step `rep` of `scene`: the bracket's in turn for `bracket` (the warm-up
+/// step the last one's), else 20 ms.
+fn exposure_s(scene: &str, rep: usize) -> f64 {
+    match (scene, rep) {
+        ("bracket", 0) => BRACKET_S[2],
+        ("bracket", _) => BRACKET_S[(rep - 1) % 3],
+        _ => 0.02,
+    }
+}
 
 /// The world for step `rep` (0 = the untimed warm-up) of `scene`.
 fn world(scene: &str, rep: usize) -> WorldSnapshot {
@@ -177,6 +193,9 @@ fn world(scene: &str, rep: usize) -> WorldSnapshot {
     let lamp = match scene {
         "lamp" => Some("lamp1".to_string()),
         "lamps" => Some(format!("lamp{}", rep % 8 + 1)),
+        // The warm-up under lamp8; then lamp1's bracket, lamp2's, … (lamp8 again at step 22).
+        "bracket" if rep == 0 => Some("lamp8".to_string()),
+        "bracket" => Some(format!("lamp{}", (rep - 1) / 3 % 8 + 1)),
         _ => None,
     };
     WorldSnapshot {
@@ -201,16 +220,18 @@ fn world(scene: &str, rep: usize) -> WorldSnapshot {
     }
 }
 
-/// One 8-camera step: every camera rendered once, concurrently, on the current rayon pool.
+/// One 8-camera step: every camera rendered once for `exposure_s`, concurrently, on the
+/// current rayon pool.
 fn step(
     renderer: &Renderer,
     rig: &RigSpec,
     world: &WorldSnapshot,
+    exposure_s: f64,
     seed: u64,
 ) -> Result<(), String> {
     rig.cameras.par_iter().enumerate().try_for_each(|(k, cam)| {
         let frame = renderer
-            .render(world, &cam.id, 0.02, 1.0, seed * 8 + k as u64)
+            .render(world, &cam.id, exposure_s, 1.0, seed * 8 + k as u64)
             .map_err(|e| e.to_string())?;
         std::hint::black_box(&frame.pixels);
         Ok(())
@@ -243,14 +264,15 @@ fn child(preset: &str) -> Result<(), Box<dyn std::error::Error>> {
             let renderer = Renderer::new(&rig)?;
             let result = pool.install(|| -> Result<Value, String> {
                 let cold = Instant::now();
-                step(&renderer, &rig, &world(scene, 0), 0)?;
+                step(&renderer, &rig, &world(scene, 0), exposure_s(scene, 0), 0)?;
                 let cold_s = cold.elapsed().as_secs_f64();
                 let mut times = Vec::with_capacity(reps);
                 let cpu0 = cpu_s();
                 for rep in 0..reps {
                     let w = world(scene, rep + 1);
                     let t = Instant::now();
-                    step(&renderer, &rig, &w, rep as u64 + 1)?;
+                    let exposure = exposure_s(scene, rep + 1);
+                    step(&renderer, &rig, &w, exposure, rep as u64 + 1)?;
                     times.push(t.elapsed().as_secs_f64());
                 }
                 let cpu = cpu_s().zip(cpu0).map_or(f64::NAN, |(b, a)| b - a);

@@ -1,5 +1,5 @@
 //! Tables the renderer keeps between frames (each camera's lens inversion, each view's primary
-//! hits) within a memory budget: built once per key by the first caller (concurrent callers
+//! hits, each camera's latest radiance) within a memory budget: built once per key by the first caller (concurrent callers
 //! with the same key wait for it), the least recently used dropped first once the budget is
 //! exceeded, and a table above an eighth of the budget never kept, so eight cameras' fit.
 
@@ -28,44 +28,78 @@ impl<K: PartialEq, T> Kept<K, T> {
     /// The table for `key` (`bytes` large), built by `build` on first use; `None` when a
     /// table that large is not kept (the caller computes per frame instead).
     pub fn get(&self, key: K, bytes: usize, build: impl FnOnce() -> T) -> Option<Arc<T>> {
-        if bytes > self.budget_bytes / 8 {
+        if !self.keeps(bytes) {
             return None;
         }
-        let slot = {
-            let mut slots = self
-                .slots
-                .lock()
-                .unwrap_or_else(|poisoned| poisoned.into_inner());
-            let slot = match slots.iter().position(|(k, _, _)| *k == key) {
-                Some(i) => slots.remove(i).map(|(_, _, s)| s).unwrap_or_default(),
-                None => Arc::default(),
-            };
-            slots.push_back((key, bytes, Arc::clone(&slot)));
-            while slots.len() > 1
-                && slots.iter().map(|(_, b, _)| b).sum::<usize>() > self.budget_bytes
-            {
-                slots.pop_front();
-            }
-            slot
-        };
+        let slot = self.claim(key, bytes);
         Some(Arc::clone(slot.get_or_init(|| Arc::new(build()))))
+    }
+
+    /// [`Self::get`] for a build that can fail: the error is returned and nothing kept; a
+    /// table too large to keep is built and returned. Concurrent callers with the same key
+    /// may each build (the first result is kept).
+    pub fn try_get<E>(
+        &self,
+        key: K,
+        bytes: usize,
+        build: impl FnOnce() -> Result<T, E>,
+    ) -> Result<Arc<T>, E>
+    where
+        K: Clone,
+    {
+        if !self.keeps(bytes) {
+            return build().map(Arc::new);
+        }
+        let slot = self.claim(key.clone(), bytes);
+        if let Some(table) = slot.get() {
+            return Ok(Arc::clone(table));
+        }
+        match build() {
+            Ok(table) => Ok(Arc::clone(slot.get_or_init(|| Arc::new(table)))),
+            Err(e) => {
+                self.lock()
+                    .retain(|(k, _, s)| !(*k == key && Arc::ptr_eq(s, &slot)));
+                Err(e)
+            }
+        }
+    }
+
+    /// Whether a table of `bytes` is kept: not above an eighth of the budget.
+    pub fn keeps(&self, bytes: usize) -> bool {
+        bytes <= self.budget_bytes / 8
+    }
+
+    /// The slot for `key`, made the most recently used (a new, empty one if none is held),
+    /// the least recently used dropped while the tables exceed the budget.
+    fn claim(&self, key: K, bytes: usize) -> Slot<T> {
+        let mut slots = self.lock();
+        let slot = match slots.iter().position(|(k, _, _)| *k == key) {
+            Some(i) => slots.remove(i).map(|(_, _, s)| s).unwrap_or_default(),
+            None => Arc::default(),
+        };
+        slots.push_back((key, bytes, Arc::clone(&slot)));
+        while slots.len() > 1 && slots.iter().map(|(_, b, _)| b).sum::<usize>() > self.budget_bytes
+        {
+            slots.pop_front();
+        }
+        slot
+    }
+
+    /// The slots, even after a panic elsewhere (they hold finished tables only).
+    fn lock(&self) -> std::sync::MutexGuard<'_, VecDeque<(K, usize, Slot<T>)>> {
+        self.slots
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner())
     }
 
     /// True when a table for `key` is held (or being built).
     pub fn contains(&self, key: &K) -> bool {
-        self.slots
-            .lock()
-            .unwrap_or_else(|poisoned| poisoned.into_inner())
-            .iter()
-            .any(|(k, _, _)| k == key)
+        self.lock().iter().any(|(k, _, _)| k == key)
     }
 
     /// Tables held now.
     pub fn len(&self) -> usize {
-        self.slots
-            .lock()
-            .unwrap_or_else(|poisoned| poisoned.into_inner())
-            .len()
+        self.lock().len()
     }
 
     /// True when no table is held.
@@ -94,5 +128,20 @@ mod tests {
         assert_eq!(*fresh, 8, "the first was dropped and made again");
         assert!(kept.get(99, 200, || 0).is_none());
         assert_eq!(kept.len(), 10);
+    }
+
+    /// A failed build keeps nothing: the next call builds again; a success is then shared.
+    #[test]
+    fn a_failed_build_is_not_kept() {
+        let kept = Kept::<u32, u32>::with_budget(1000);
+        assert_eq!(kept.try_get(1, 100, || Err::<u32, _>("no")), Err("no"));
+        assert!(!kept.contains(&1));
+        let a = kept.try_get(1, 100, || Ok::<_, &str>(5)).expect("built");
+        let again = kept
+            .try_get(1, 100, || Err::<u32, _>("not called"))
+            .expect("kept");
+        assert!(Arc::ptr_eq(&a, &again));
+        assert_eq!(kept.try_get(2, 200, || Ok::<_, &str>(1)), Ok(Arc::new(1)));
+        assert!(!kept.contains(&2), "too large to keep");
     }
 }

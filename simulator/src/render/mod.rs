@@ -33,6 +33,7 @@ pub mod ground_truth;
 pub mod heightfield;
 pub mod irradiance;
 pub mod kept;
+pub mod kept_radiance;
 pub mod laser;
 pub mod lights;
 pub mod material;
@@ -90,6 +91,8 @@ pub struct Renderer {
     lens_tables: pixel_samples::LensTables,
     /// Each camera view's primary hits, kept while only the light changes.
     primary_hits: primary_hits::PrimaryHits,
+    /// Each camera's latest radiance: an HDR bracket's exposures share one trace.
+    radiance: kept_radiance::KeptRadiance,
     /// Runs of pixels laser frames skipped as black (see [`dark_spans`]), counted for tests
     /// and benchmarks.
     dark_spans_skipped: AtomicU64,
@@ -159,6 +162,7 @@ impl Renderer {
             passes: TransportCaches::default(),
             lens_tables: pixel_samples::LensTables::default(),
             primary_hits: primary_hits::PrimaryHits::default(),
+            radiance: kept_radiance::KeptRadiance::for_rig(rig),
             dark_spans_skipped: AtomicU64::new(0),
         })
     }
@@ -217,8 +221,14 @@ impl Renderer {
     ) -> Result<Rendered, RenderError> {
         check_inputs(world, exposure_s, gain)?;
         let cam = self.camera(camera_id)?;
-        // Light is integrated only for a positive exposure; dark frames skip tracing.
-        let radiance = self.trace(world, cam, exposure_s > 0.0)?;
+        // Light is integrated only for a positive exposure; dark frames skip tracing. The
+        // exposures of a bracket see one world and share its trace.
+        let integrate = exposure_s > 0.0;
+        let radiance =
+            self.radiance
+                .get(camera_id, world, integrate, (cam.width, cam.height), || {
+                    self.trace(world, cam, integrate)
+                })?;
         let response = self.as_built.camera(&cam.id).sensor_response();
         let sensor =
             Sensor::new(cam.bit_depth, exposure_s, gain, noise_seed).with_response(response);
@@ -237,7 +247,7 @@ impl Renderer {
                         .copy_from_slice(&sensor.digitise_rgb_with(&dark, rgb, index));
                 }
             });
-        let mut notes = radiance.notes;
+        let mut notes = radiance.notes.clone();
         notes["sensor"] = json!({
             "exposure_s": exposure_s,
             "gain": gain,
@@ -258,6 +268,12 @@ impl Renderer {
     /// this renderer was made: how much of a sweep the kept hits spare.
     pub fn dark_spans_skipped(&self) -> u64 {
         self.dark_spans_skipped.load(Ordering::Relaxed)
+    }
+
+    /// Frames whose radiance was reused from an earlier frame of the same world (an HDR
+    /// bracket's later exposures) since this renderer was made.
+    pub fn radiance_reused(&self) -> u64 {
+        self.radiance.reused()
     }
 
     /// The noise-free radiance camera `camera_id` sees of `world`, in reference units (white

@@ -1,7 +1,7 @@
 //! What the renderer reuses between frames (each camera view's primary hits, the laser's
 //! reach) changes no pixel: frames rendered with the kept tables are bit-identical to frames
 //! rendered from scratch, across lamp sequences, laser sweeps, new views, a distorted lens,
-//! the reflectometer's moving tube and both quality presets.
+//! the reflectometer's moving tube, HDR brackets and both quality presets.
 
 use std::collections::BTreeMap;
 
@@ -55,9 +55,12 @@ fn laser(mut w: WorldSnapshot, tilt_deg: f64) -> WorldSnapshot {
 /// that keeps none; the pixels and notes must match bit for bit, and the first must have used
 /// its tables.
 fn same_with_and_without_kept_hits(rig: &RigSpec, quality: Quality, worlds: &[WorldSnapshot]) {
-    let kept = Renderer::with_knobs(rig, quality.knobs()).expect("renderer");
+    let mut kept = Renderer::with_knobs(rig, quality.knobs()).expect("renderer");
+    // A repeated world would reuse the whole radiance; here the hits are under test.
+    kept.radiance = kept_radiance::KeptRadiance::with_budget(0);
     let mut scratch = Renderer::with_knobs(rig, quality.knobs()).expect("renderer");
     scratch.primary_hits = primary_hits::PrimaryHits::with_budget(0);
+    scratch.radiance = kept_radiance::KeptRadiance::with_budget(0);
     for (i, w) in worlds.iter().enumerate() {
         for cam in &rig.cameras {
             let a = kept
@@ -90,6 +93,61 @@ fn a_lamp_sequence_and_a_laser_sweep_at_one_view_are_bit_identical() {
     for quality in [Quality::Preview, Quality::Standard] {
         same_with_and_without_kept_hits(&rig, quality, &worlds);
     }
+}
+
+/// The exposures of an HDR bracket share one trace: every frame is bit-identical to one
+/// traced on its own, and a world that differs in anything but the time is traced again.
+#[test]
+fn a_brackets_exposures_share_one_trace_and_stay_bit_identical() {
+    let rig = rig(BUILTIN_LIGHTSTAGE, "bumps", 0.0);
+    let kept = Renderer::with_knobs(&rig, Quality::Preview.knobs()).expect("renderer");
+    let mut scratch = Renderer::with_knobs(&rig, Quality::Preview.knobs()).expect("renderer");
+    scratch.radiance = kept_radiance::KeptRadiance::with_budget(0);
+    let lit = lamp(world("bumps", 30.0), "lamp1");
+    let cameras = rig.cameras.len() as u64;
+    let mut first = Vec::new();
+    for (i, exposure_s) in [0.005, 0.02, 0.08].into_iter().enumerate() {
+        let at = WorldSnapshot {
+            rig_time_s: 1.0 + 0.1 * i as f64,
+            ..lit.clone()
+        };
+        for cam in &rig.cameras {
+            let a = kept
+                .render(&at, &cam.id, exposure_s, 1.0, 7)
+                .expect("render");
+            let b = scratch
+                .render(&at, &cam.id, exposure_s, 1.0, 7)
+                .expect("render");
+            assert!(a.pixels == b.pixels, "exposure {exposure_s}, {}", cam.id);
+            assert_eq!(a.notes, b.notes, "exposure {exposure_s}, {}", cam.id);
+            if i == 0 {
+                first.push(a.pixels);
+            } else {
+                assert!(first.iter().all(|p| *p != a.pixels), "the exposure shows");
+            }
+        }
+    }
+    assert_eq!(kept.radiance_reused(), 2 * cameras);
+    assert_eq!(scratch.radiance_reused(), 0);
+    // Another lamp, a lamp still warming up, another turntable angle, the laser, a dark
+    // frame: each traced anew.
+    let mut warming = lit.clone();
+    warming.lamps.insert("lamp1".into(), 0.5);
+    let others = [
+        lamp(world("bumps", 30.0), "lamp2"),
+        warming,
+        lamp(world("bumps", 31.0), "lamp1"),
+        laser(lit.clone(), 1.0),
+    ];
+    for (i, other) in others.iter().enumerate() {
+        let a = kept.render(other, "cam1", 0.02, 1.0, 3).expect("render");
+        let b = scratch.render(other, "cam1", 0.02, 1.0, 3).expect("render");
+        assert!(a.pixels == b.pixels, "world {i}");
+    }
+    for _ in 0..2 {
+        kept.render(&lit, "cam1", 0.0, 1.0, 3).expect("dark frame");
+    }
+    assert_eq!(kept.radiance_reused(), 2 * cameras, "nothing else reused");
 }
 
 #[test]
