@@ -7,6 +7,7 @@ pub mod as_built;
 pub mod emulators;
 pub mod materials;
 pub mod render;
+mod render_ahead;
 pub mod scene_file;
 pub mod sim_devices;
 pub mod world;

@@ -2,7 +2,7 @@
 //! change it; simulated cameras render it at trigger time.
 
 use std::collections::BTreeMap;
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex, MutexGuard, OnceLock};
 
 use stagehand_devices::clock::RigClock;
 use stagehand_devices::fixture_pose::FixturePose;
@@ -12,6 +12,7 @@ use tokio::sync::broadcast;
 
 use crate::render::Renderer;
 use crate::render::config::SimSpec;
+use crate::render_ahead::RenderAhead;
 use crate::world_snapshot::{LaserBeam, WorldSnapshot};
 
 /// One trigger pulse on the simulated trigger line.
@@ -80,6 +81,8 @@ pub struct World {
     state: Mutex<State>,
     pulses: broadcast::Sender<Pulse>,
     renderer: Renderer,
+    /// The worker tracing the settled world ahead of its frames (real-time rigs only).
+    ahead: OnceLock<RenderAhead>,
 }
 
 impl World {
@@ -128,7 +131,36 @@ impl World {
             state: Mutex::new(state),
             pulses,
             renderer,
+            ahead: OnceLock::new(),
         }))
+    }
+
+    /// Renders ahead from now on: while the rig settles, a worker thread traces what every
+    /// camera will see once it has (`crate::render_ahead`). For a rig on the real-time
+    /// clock (the daemon), whose frames would otherwise render after their exposure.
+    pub fn render_ahead(self: &Arc<World>) -> std::io::Result<()> {
+        if self.ahead.get().is_none() {
+            let worker = RenderAhead::start(Arc::downgrade(self))?;
+            // A second caller racing this one keeps the first worker; this one stops.
+            let _ = self.ahead.set(worker);
+        }
+        self.settling();
+        Ok(())
+    }
+
+    /// Something changed that the cameras will see once the rig settles.
+    pub(crate) fn settling(&self) {
+        if let Some(ahead) = self.ahead.get() {
+            ahead.changed();
+        }
+    }
+
+    /// Blocks until the render-ahead worker has traced every change so far (for tests;
+    /// returns at once without one).
+    pub fn wait_render_ahead(&self) {
+        if let Some(ahead) = self.ahead.get() {
+            ahead.wait_idle();
+        }
     }
 
     pub fn rig(&self) -> &RigSpec {
@@ -212,6 +244,8 @@ impl World {
                 (false, _) => None,
             };
         }
+        drop(s);
+        self.settling();
     }
 
     pub(crate) fn channel_on(&self, bank: &str, channel: u32) -> Option<bool> {
@@ -226,12 +260,16 @@ impl World {
         let mut s = self.lock();
         s.laser_on = on;
         s.laser_colour_nm = colour_nm;
+        drop(s);
+        self.settling();
     }
 
     pub(crate) fn fit_laser(&self, colour_nm: u32, mount_deg: f64) {
         let mut s = self.lock();
         s.laser_colour_nm = colour_nm;
         s.laser_mount_deg = mount_deg;
+        drop(s);
+        self.settling();
     }
 
     /// The operator placed `fixture` on the stage, as `pose` says.
@@ -239,6 +277,8 @@ impl World {
         let mut s = self.lock();
         s.fixture = fixture.to_string();
         s.fixture_pose = pose;
+        drop(s);
+        self.settling();
     }
 
     /// What lies on the stage now, and how it was placed.
@@ -328,7 +368,7 @@ impl World {
     /// The rig's state at rig time `t` (for rendering and for tests).
     pub fn snapshot_at(&self, t: f64) -> WorldSnapshot {
         let s = self.lock();
-        let axes: BTreeMap<String, f64> = s
+        let axes = s
             .axes
             .iter()
             .map(|(id, a)| (id.clone(), a.motor_at(t) + a.backlash_offset_deg))
@@ -337,14 +377,62 @@ impl World {
             .lamps
             .iter()
             .map(|(id, l)| {
+                let since = l.on_since.map(|since| t - since);
                 (
                     id.clone(),
-                    l.on_since
-                        .map(|since| warmup_fraction(t - since, l.warmup_s))
-                        .unwrap_or(0.0),
+                    since.map_or(0.0, |t| warmup_fraction(t, l.warmup_s)),
                 )
             })
             .collect();
+        self.snapshot_of(&s, t, axes, lamps)
+    }
+
+    /// The rig's state once it has settled, if nothing else changes: every axis at its move's
+    /// target (with the backlash the move leaves) and every lamp that is on warmed up. `None`
+    /// while the cart runs (its frames see it moving).
+    pub fn settled_snapshot(&self) -> Option<WorldSnapshot> {
+        let t = self.clock.now_s();
+        let s = self.lock();
+        if s.cart_run.is_some() {
+            return None;
+        }
+        let axes = s
+            .axes
+            .iter()
+            .map(|(id, a)| {
+                let at = match a.moving {
+                    None => a.motor_deg + a.backlash_offset_deg,
+                    Some((traj, _)) => {
+                        let backlash = self.rig.axis(id).map_or(0.0, |spec| spec.backlash_deg);
+                        let offset = if traj.to_deg < traj.from_deg {
+                            backlash
+                        } else if traj.to_deg > traj.from_deg {
+                            0.0
+                        } else {
+                            a.backlash_offset_deg
+                        };
+                        traj.to_deg + offset
+                    }
+                };
+                (id.clone(), at)
+            })
+            .collect();
+        let lamps = s
+            .lamps
+            .iter()
+            .map(|(id, l)| (id.clone(), if l.on_since.is_some() { 1.0 } else { 0.0 }))
+            .collect();
+        Some(self.snapshot_of(&s, t, axes, lamps))
+    }
+
+    /// The snapshot of state `s` at `t` with these axis angles and lamp outputs.
+    fn snapshot_of(
+        &self,
+        s: &State,
+        t: f64,
+        axes: BTreeMap<String, f64>,
+        lamps: BTreeMap<String, f64>,
+    ) -> WorldSnapshot {
         let laser = match (&self.rig.laser, s.laser_on) {
             (Some(spec), true) => Some(LaserBeam {
                 colour_nm: s.laser_colour_nm,
@@ -358,7 +446,7 @@ impl World {
             axes,
             lamps,
             laser,
-            cart_mm: Self::cart_at(&s, &self.rig, t),
+            cart_mm: Self::cart_at(s, &self.rig, t),
             fixture: s.fixture.clone(),
             fixture_pose: s.fixture_pose,
         }

@@ -1,13 +1,19 @@
 //! Tables the renderer keeps between frames (each camera's lens inversion, each view's primary
-//! hits, each camera's latest radiance) within a memory budget: built once per key by the first caller (concurrent callers
-//! with the same key wait for it), the least recently used dropped first once the budget is
-//! exceeded, and a table above an eighth of the budget never kept, so eight cameras' fit.
+//! hits, each camera's latest radiance) within a memory budget: built once per key by the
+//! first caller (concurrent callers with the same key wait for it), the least recently used
+//! dropped first once the budget is exceeded, and a table above an eighth of the budget never
+//! kept, so eight cameras' fit.
 
 use std::collections::VecDeque;
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::{Arc, Mutex, MutexGuard};
 
-/// A table being made or made.
-type Slot<T> = Arc<OnceLock<Arc<T>>>;
+/// A table: empty until made; locked while being made, so callers with its key wait.
+type Slot<T> = Arc<Mutex<Option<Arc<T>>>>;
+
+/// The slot's table, even after a panic in a build (the slot is then empty, built again).
+fn lock_slot<T>(slot: &Mutex<Option<Arc<T>>>) -> MutexGuard<'_, Option<Arc<T>>> {
+    slot.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
 
 /// Tables of type `T` by key `K`, within a memory budget.
 #[derive(Debug)]
@@ -32,12 +38,13 @@ impl<K: PartialEq, T> Kept<K, T> {
             return None;
         }
         let slot = self.claim(key, bytes);
-        Some(Arc::clone(slot.get_or_init(|| Arc::new(build()))))
+        let mut table = lock_slot(&slot);
+        Some(Arc::clone(table.get_or_insert_with(|| Arc::new(build()))))
     }
 
-    /// [`Self::get`] for a build that can fail: the error is returned and nothing kept; a
-    /// table too large to keep is built and returned. Concurrent callers with the same key
-    /// may each build (the first result is kept).
+    /// [`Self::get`] for a build that can fail: the error is returned and nothing kept (a
+    /// caller waiting for the same key then builds); a table too large to keep is built and
+    /// returned.
     pub fn try_get<E>(
         &self,
         key: K,
@@ -51,12 +58,14 @@ impl<K: PartialEq, T> Kept<K, T> {
             return build().map(Arc::new);
         }
         let slot = self.claim(key.clone(), bytes);
-        if let Some(table) = slot.get() {
+        let mut table = lock_slot(&slot);
+        if let Some(table) = table.as_ref() {
             return Ok(Arc::clone(table));
         }
         match build() {
-            Ok(table) => Ok(Arc::clone(slot.get_or_init(|| Arc::new(table)))),
+            Ok(built) => Ok(Arc::clone(table.insert(Arc::new(built)))),
             Err(e) => {
+                drop(table);
                 self.lock()
                     .retain(|(k, _, s)| !(*k == key && Arc::ptr_eq(s, &slot)));
                 Err(e)
@@ -86,7 +95,7 @@ impl<K: PartialEq, T> Kept<K, T> {
     }
 
     /// The slots, even after a panic elsewhere (they hold finished tables only).
-    fn lock(&self) -> std::sync::MutexGuard<'_, VecDeque<(K, usize, Slot<T>)>> {
+    fn lock(&self) -> MutexGuard<'_, VecDeque<(K, usize, Slot<T>)>> {
         self.slots
             .lock()
             .unwrap_or_else(|poisoned| poisoned.into_inner())

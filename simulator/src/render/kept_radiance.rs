@@ -48,20 +48,47 @@ impl KeptRadiance {
     }
 
     /// Camera `camera_id`'s radiance of `world` (`integrate`: with light), traced by `trace`
-    /// unless an earlier frame saw the same world (counted in [`Self::reused`]); an error
-    /// is returned and nothing kept, and an image too large to keep is traced every time, as
-    /// is a dark frame's (`integrate` false: nothing is traced, nothing worth keeping).
+    /// unless an earlier frame (or [`Self::fill`]) saw the same world, counted in
+    /// [`Self::reused`]; a trace of that world under way is waited for. An error is returned
+    /// and nothing kept; an image too large to keep is traced every time, as is a dark
+    /// frame's (`integrate` false: nothing is traced, nothing worth keeping).
     pub fn get<E>(
         &self,
         camera_id: &str,
         world: &WorldSnapshot,
         integrate: bool,
-        (width, height): (u32, u32),
+        size: (u32, u32),
         trace: impl FnOnce() -> Result<RadianceImage, E>,
     ) -> Result<Arc<RadianceImage>, E> {
         if !integrate {
             return trace().map(Arc::new);
         }
+        let (image, traced) = self.kept(camera_id, world, size, trace)?;
+        if !traced {
+            self.reused.fetch_add(1, Ordering::Relaxed);
+        }
+        Ok(image)
+    }
+
+    /// Traces camera `camera_id`'s radiance of `world` ahead of its frame, unless kept.
+    pub fn fill<E>(
+        &self,
+        camera_id: &str,
+        world: &WorldSnapshot,
+        size: (u32, u32),
+        trace: impl FnOnce() -> Result<RadianceImage, E>,
+    ) -> Result<(), E> {
+        self.kept(camera_id, world, size, trace).map(|_| ())
+    }
+
+    /// The kept image of `world` for `camera_id`, and whether `trace` made it now.
+    fn kept<E>(
+        &self,
+        camera_id: &str,
+        world: &WorldSnapshot,
+        (width, height): (u32, u32),
+        trace: impl FnOnce() -> Result<RadianceImage, E>,
+    ) -> Result<(Arc<RadianceImage>, bool), E> {
         let untimed = WorldSnapshot {
             rig_time_s: 0.0,
             ..world.clone()
@@ -73,10 +100,7 @@ impl KeptRadiance {
             traced = true;
             trace()
         })?;
-        if !traced {
-            self.reused.fetch_add(1, Ordering::Relaxed);
-        }
-        Ok(image)
+        Ok((image, traced))
     }
 
     /// Frames that reused a kept radiance instead of tracing, since this renderer was made.

@@ -264,6 +264,18 @@ impl Renderer {
         Ok(Rendered { pixels, notes })
     }
 
+    /// Traces what camera `camera_id` will see of `world` before its frame is asked for (the
+    /// rig settling: a lamp warming up, an axis moving), so that the frame, if it sees that
+    /// world, reuses the trace (or waits for it) instead of tracing after its exposure.
+    pub fn render_ahead(&self, world: &WorldSnapshot, camera_id: &str) -> Result<(), RenderError> {
+        check_inputs(world, 1.0, 1.0)?;
+        let cam = self.camera(camera_id)?;
+        self.radiance
+            .fill(camera_id, world, (cam.width, cam.height), || {
+                self.trace(world, cam, true)
+            })
+    }
+
     /// Runs of [`primary_hits::SPAN`] pixels that laser frames have skipped as black since
     /// this renderer was made: how much of a sweep the kept hits spare.
     pub fn dark_spans_skipped(&self) -> u64 {

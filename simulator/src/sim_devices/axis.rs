@@ -46,6 +46,7 @@ impl SimAxis {
         let start = self.now();
         self.world
             .with_axis(&self.spec.id, |a| a.moving = Some((traj, start)));
+        self.world.settling();
         self.world.clock().sleep_s(traj.duration_s()).await;
         let end = traj.to_deg;
         let backlash = self.spec.backlash_deg;

@@ -7,9 +7,10 @@ use std::sync::Arc;
 use stagehand_devices::axis::{AxisDriver, AxisHandle};
 use stagehand_devices::clock::RigClock;
 use stagehand_devices::rig::{BUILTIN_LIGHTSTAGE, RigSpec, parse_rig};
+use stagehand_devices::switch_bank::SwitchBankDriver;
 use stagehand_devices::{DeviceError, DeviceErrorKind};
 use stagehand_simulator::World;
-use stagehand_simulator::sim_devices::SimAxis;
+use stagehand_simulator::sim_devices::{SimAxis, SimSwitchBank};
 use stagehand_simulator::world::warmup_fraction;
 
 fn rig() -> Arc<RigSpec> {
@@ -153,4 +154,67 @@ async fn a_pattern_camera_delivers_a_new_test_pattern_per_trigger_without_render
         frames[0].iter().any(|v| *v > u16::MAX / 2),
         "the range is used"
     );
+}
+
+/// The world without its time: what a frame's radiance depends on.
+fn untimed(mut w: stagehand_simulator::world_snapshot::WorldSnapshot) -> String {
+    w.rig_time_s = 0.0;
+    format!("{w:?}")
+}
+
+/// While the rig settles, the world it will settle into is known exactly: a downward move's
+/// target with the backlash it leaves, a lamp at full output once warm.
+#[tokio::test(start_paused = true)]
+async fn the_settled_world_is_predicted_exactly_while_the_rig_settles() {
+    let _turn = crate::grbl_peer::alongside();
+    let w = world();
+    let spec = w.rig().axis("light_arc").unwrap().clone();
+    let mut arc = SimAxis::new(spec, w.clone());
+    arc.home().await.unwrap();
+    arc.move_to(60.0).await.unwrap();
+    let bank = w.rig().switch_banks[0].clone();
+    let mut lamps = SimSwitchBank::new(bank, w.clone());
+    lamps.set(1, true).await.unwrap();
+    let mover = tokio::spawn(async move { arc.move_to(30.0).await });
+    tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    let now = w.snapshot_at(w.clock().now_s());
+    let predicted = w.settled_snapshot().expect("no cart runs");
+    assert_ne!(
+        untimed(now.clone()),
+        untimed(predicted.clone()),
+        "still settling"
+    );
+    assert!(now.axes["light_arc"] > 30.0 && now.lamps["lamp1"] < 1.0);
+    mover.await.unwrap().unwrap();
+    let warm = w.rig().lamp("lamp1").unwrap().warmup_s;
+    tokio::time::sleep(std::time::Duration::from_secs_f64(warm)).await;
+    let settled = w.snapshot_at(w.clock().now_s());
+    assert_eq!(untimed(predicted), untimed(settled));
+}
+
+/// A rig that renders ahead traces the settled world while it settles: every camera's frame
+/// of that world then reuses the trace, and reads the same as a frame rendered afresh.
+#[tokio::test(start_paused = true)]
+async fn a_rig_rendering_ahead_traces_the_settled_world_before_its_frames() {
+    let _turn = crate::grbl_peer::alongside();
+    let w = world();
+    w.render_ahead().unwrap();
+    let bank = w.rig().switch_banks[0].clone();
+    let mut lamps = SimSwitchBank::new(bank, w.clone());
+    lamps.set(3, true).await.unwrap();
+    w.wait_render_ahead();
+    let warm = w.rig().lamp("lamp3").unwrap().warmup_s;
+    tokio::time::sleep(std::time::Duration::from_secs_f64(warm)).await;
+    let at = w.snapshot_at(w.clock().now_s());
+    let fresh = stagehand_simulator::render::Renderer::new(w.rig()).unwrap();
+    for (k, cam) in w.rig().cameras.iter().enumerate() {
+        let frame = w
+            .renderer()
+            .render(&at, &cam.id, 0.02, 1.0, k as u64)
+            .unwrap();
+        let again = fresh.render(&at, &cam.id, 0.02, 1.0, k as u64).unwrap();
+        assert!(frame.pixels == again.pixels, "{}", cam.id);
+    }
+    assert_eq!(w.renderer().radiance_reused(), w.rig().cameras.len() as u64);
+    assert_eq!(fresh.radiance_reused(), 0);
 }
