@@ -1,10 +1,11 @@
 //! The OpenEXR conventions shared by HDR frames ([`crate::exr_hdr`]) and ground-truth planes
-//! ([`crate::exr_planes`]): one layer, ZIP compression (16 scan lines per block), increasing
-//! scan lines, `stagehand` as the software name and the frame metadata JSON in the
-//! [`ATTRIBUTE`] text attribute; and the errors of encoding and decoding.
+//! ([`crate::exr_planes`]): one layer, ZIP compression (16 scan lines per block) unless told
+//! otherwise, increasing scan lines, `stagehand` as the software name and the frame metadata
+//! JSON in the [`ATTRIBUTE`] text attribute; and the errors of encoding and decoding.
 
 use std::io::Cursor;
 
+use exr::compression::Compression;
 use exr::image::write::WritableImage;
 use exr::image::write::channels::WritableChannels;
 use exr::image::{Blocks, Encoding, Image, Layer};
@@ -23,6 +24,20 @@ pub(crate) fn layer<'c, C>(width: u32, height: u32, channels: C, metadata_json: 
 where
     C: WritableChannels<'c> + 'c,
 {
+    layer_with(width, height, channels, metadata_json, Compression::ZIP16)
+}
+
+/// [`layer`] with another `compression`.
+pub(crate) fn layer_with<'c, C>(
+    width: u32,
+    height: u32,
+    channels: C,
+    metadata_json: &str,
+    compression: Compression,
+) -> Layer<C>
+where
+    C: WritableChannels<'c> + 'c,
+{
     let mut attributes = LayerAttributes {
         software_name: Some(Text::from_slice_unchecked(b"stagehand")),
         ..LayerAttributes::default()
@@ -32,7 +47,7 @@ where
         AttributeValue::Text(Text::from_slice_unchecked(metadata_json.as_bytes())),
     );
     let encoding = Encoding {
-        compression: exr::compression::Compression::ZIP16,
+        compression,
         blocks: Blocks::ScanLines,
         line_order: LineOrder::Increasing,
     };

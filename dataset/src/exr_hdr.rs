@@ -1,5 +1,6 @@
-//! HDR frames as OpenEXR: one RGB layer of **f32** samples, ZIP compression (16 scan lines per
-//! block), the frame metadata JSON in a `stagehand` text attribute.
+//! HDR frames as OpenEXR: one RGB layer of **f32** samples, the frame metadata JSON in a
+//! `stagehand` text attribute; uncompressed as a capture writes them ([`HDR_FRAME_COMPRESSION`]),
+//! ZIP (16 scan lines per block) for products and conversions.
 //!
 //! Why f32 and not f16: radiance is in DN per second at gain 1, so a short exposure near full
 //! scale reaches 10⁶–10⁸ (65535 DN / 1 ms ≈ 6.6·10⁷), far beyond f16's maximum of 65504, and
@@ -8,6 +9,7 @@
 
 use std::io::Cursor;
 
+pub use exr::compression::Compression;
 use exr::image::read::image::ReadLayers;
 use exr::image::read::layers::ReadChannels;
 use exr::image::read::read;
@@ -33,6 +35,12 @@ pub struct DecodedExr {
     pub metadata: Option<String>,
 }
 
+/// How a capture writes its merged HDR frames: uncompressed. `cargo bench --bench
+/// frame_formats` on a 1024×768 bracket: ZIP16 takes 162 ms a frame for 89 % of the size,
+/// PIZ 130 ms for 77 %, uncompressed 17.5 ms; ZIP16 took 41 % of the daemon's CPU in a
+/// `btf.rhai` run. Every OpenEXR reader reads it.
+pub const HDR_FRAME_COMPRESSION: Compression = Compression::Uncompressed;
+
 /// Encodes interleaved RGB f32 `pixels` as OpenEXR (f32, ZIP16, increasing scan lines) with
 /// `metadata_json` in the [`ATTRIBUTE`] text attribute. `name` is only used in errors.
 pub fn encode_exr(
@@ -41,6 +49,26 @@ pub fn encode_exr(
     height: u32,
     pixels: &[f32],
     metadata_json: &str,
+) -> Result<Vec<u8>> {
+    encode_exr_with(
+        name,
+        width,
+        height,
+        pixels,
+        metadata_json,
+        Compression::ZIP16,
+    )
+}
+
+/// [`encode_exr`] with another OpenEXR `compression` (the frame-format benchmark compares
+/// them).
+pub fn encode_exr_with(
+    name: &str,
+    width: u32,
+    height: u32,
+    pixels: &[f32],
+    metadata_json: &str,
+    compression: Compression,
 ) -> Result<Vec<u8>> {
     let samples = rgb_samples(name, width, height)?;
     if pixels.len() != samples {
@@ -57,7 +85,8 @@ pub fn encode_exr(
         let i = (pos.y() * w + pos.x()) * 3;
         (pixels[i], pixels[i + 1], pixels[i + 2])
     });
-    let image = Image::from_layer(exr_file::layer(width, height, channels, metadata_json));
+    let layer = exr_file::layer_with(width, height, channels, metadata_json, compression);
+    let image = Image::from_layer(layer);
     exr_file::write(name, &image, samples * 2)
 }
 
@@ -121,6 +150,12 @@ mod tests {
         assert_eq!(back.metadata.as_deref(), Some(json));
         // deterministic bytes despite parallel compression
         assert_eq!(encode_exr("t.exr", w, h, &pixels, json)?, bytes);
+        // As a capture writes them: uncompressed, every sample stored, the same image back.
+        let plain = encode_exr_with("t.exr", w, h, &pixels, json, HDR_FRAME_COMPRESSION)?;
+        assert!(plain.len() >= pixels.len() * 4, "{} bytes", plain.len());
+        let back = decode_exr("t.exr", &plain)?;
+        assert_eq!(back.pixels, pixels);
+        assert_eq!(back.metadata.as_deref(), Some(json));
         Ok(())
     }
 

@@ -9,7 +9,7 @@ use rayon::prelude::*;
 use crate::atomic::write_atomic;
 use crate::checksum::sha256_hex;
 use crate::error::{Result, StorageError};
-use crate::exr_hdr::encode_exr;
+use crate::exr_hdr::{HDR_FRAME_COMPRESSION, encode_exr_with};
 use crate::exr_planes::encode_exr_planes;
 use crate::frame_meta::{
     FrameMeta, FramePixels, FrameToWrite, frame_file_name, ground_truth_file_name,
@@ -95,7 +95,10 @@ pub(crate) fn write_frame(
             &json,
             deflate,
         )?,
-        FramePixels::Hdr(px) => encode_exr(&name, f.meta.width, f.meta.height, px, &json)?,
+        FramePixels::Hdr(px) => {
+            let (w, h) = (f.meta.width, f.meta.height);
+            encode_exr_with(&name, w, h, px, &json, HDR_FRAME_COMPRESSION)?
+        }
     };
     let sha256 = sha256_hex(&bytes);
     let path = write_atomic(frames_dir, &name, &bytes)?;

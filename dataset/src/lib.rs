@@ -19,8 +19,8 @@
 //! | [`atomic`] | temp → fsync → rename → fsync dir |
 //! | [`checksum`] | SHA-256 of frame files |
 //! | [`png16`] | 16-bit RGB PNG with iTXt metadata |
-//! | [`exr_file`] | the OpenEXR conventions both EXR kinds share (ZIP16, metadata attribute) |
-//! | [`exr_hdr`] | OpenEXR f32 RGB, ZIP |
+//! | [`exr_file`] | the OpenEXR conventions both EXR kinds share (ZIP16 unless told, metadata attribute) |
+//! | [`exr_hdr`] | OpenEXR f32 RGB: uncompressed as captured, ZIP for products |
 //! | [`exr_planes`] | OpenEXR f32 named channels (ground truth), ZIP |
 //! | [`hdr_merge`] | Debevec-style bracket merge |
 //! | [`index`] | SQLite schema, its versions and migrations, the writer's statements |
