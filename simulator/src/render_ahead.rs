@@ -4,8 +4,11 @@
 //! for the rest of it, instead of tracing after its exposure: the rendering overlaps the
 //! rig's own waits as a real camera's readout does. The frames are the same, bit for bit (the
 //! trace is keyed on the exact world, `render/kept_radiance.rs`); a wrong guess costs CPU
-//! only. Only the daemon's rig renders ahead: on the virtual clock settling takes no time.
+//! only. Only the daemon's rig renders ahead, and only while a run drives it (an operator
+//! jogging would make it trace worlds no frame sees); on the virtual clock settling takes no
+//! time.
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, Weak};
 use std::time::Duration;
 
@@ -30,6 +33,8 @@ struct Wanted {
 struct Shared {
     wanted: Mutex<Wanted>,
     wake: Condvar,
+    /// Changes are traced only while on (a run drives the rig), not while an operator jogs.
+    on: AtomicBool,
 }
 
 impl Shared {
@@ -63,10 +68,20 @@ impl RenderAhead {
         Ok(RenderAhead { shared })
     }
 
-    /// The rig changed: guess its settled world again.
+    /// Traces changes from now on (`true`) or ignores them (`false`).
+    pub(crate) fn set_on(&self, on: bool) {
+        self.shared.on.store(on, Ordering::Relaxed);
+        if on {
+            self.changed();
+        }
+    }
+
+    /// The rig changed: guess its settled world again (while on).
     pub(crate) fn changed(&self) {
-        self.shared.lock().changed = true;
-        self.shared.wake.notify_all();
+        if self.shared.on.load(Ordering::Relaxed) {
+            self.shared.lock().changed = true;
+            self.shared.wake.notify_all();
+        }
     }
 
     /// Blocks until the worker has traced every change so far (for tests).
@@ -108,7 +123,7 @@ fn work(shared: &Shared, world: &Weak<World>) {
             && let Some(settled) = world.settled_snapshot()
         {
             for camera in &world.rig().cameras {
-                if shared.lock().changed {
+                if shared.lock().changed || !shared.on.load(Ordering::Relaxed) {
                     break;
                 }
                 // A failing trace fails the frame's own render too, which reports it.

@@ -135,16 +135,19 @@ impl World {
         }))
     }
 
-    /// Renders ahead from now on: while the rig settles, a worker thread traces what every
-    /// camera will see once it has (`crate::render_ahead`). For a rig on the real-time
-    /// clock (the daemon), whose frames would otherwise render after their exposure.
-    pub fn render_ahead(self: &Arc<World>) -> std::io::Result<()> {
-        if self.ahead.get().is_none() {
+    /// Renders ahead (`on`) or stops: while the rig settles, a worker thread traces what every
+    /// camera will see once it has (`crate::render_ahead`). For a rig on the real-time clock
+    /// (the daemon, while a run drives it), whose frames would otherwise render after their
+    /// exposure.
+    pub fn set_render_ahead(self: &Arc<World>, on: bool) -> std::io::Result<()> {
+        if on && self.ahead.get().is_none() {
             let worker = RenderAhead::start(Arc::downgrade(self))?;
             // A second caller racing this one keeps the first worker; this one stops.
             let _ = self.ahead.set(worker);
         }
-        self.settling();
+        if let Some(ahead) = self.ahead.get() {
+            ahead.set_on(on);
+        }
         Ok(())
     }
 

@@ -178,15 +178,6 @@ pub async fn start(opts: ServeOptions) -> Result<RunningDaemon, DaemonError> {
         opts.seed,
         opts.emulation.as_ref(),
     )?;
-    // The daemon's simulated cameras render ahead while the rig settles (a lamp warming up,
-    // an axis moving), as a real camera's frame costs only its readout after the exposure.
-    if let Some(world) = &rig.world
-        && let Err(e) = world.render_ahead()
-    {
-        tracing::warn!(
-            "simulated rig: cannot render ahead ({e}); frames render after their exposures"
-        );
-    }
     let daemon = Daemon {
         rig,
         rig_source,

@@ -474,9 +474,12 @@ impl Reservation {
         tracing::info!(run = %active.run_id, "run started");
         let forwarder = tokio::spawn(forward(app.clone(), active.clone(), rx));
         let supervised = active.clone();
+        // While the run drives it, the simulated rig renders ahead of its frames.
+        render_ahead(&app, true);
         tokio::spawn(async move {
             // The run on a task of its own, so even a panic ends in a recorded outcome.
             let joined = tokio::spawn(run).await;
+            render_ahead(&app, false);
             if tokio::time::timeout(FORWARDER_DRAIN, forwarder)
                 .await
                 .is_err()
@@ -487,6 +490,18 @@ impl Reservation {
             finish(&app, &supervised, outcome);
         });
         Ok(active)
+    }
+}
+
+/// Starts or stops the simulated rig's rendering ahead (`World::set_render_ahead`): the
+/// cameras trace the world the rig settles into while it settles, as a real camera's frame
+/// costs only its readout after the exposure. Without it frames still render, after their
+/// exposures.
+fn render_ahead(app: &AppState, on: bool) {
+    if let Some(world) = &app.rig.world
+        && let Err(e) = world.set_render_ahead(on)
+    {
+        tracing::warn!("simulated rig: cannot render ahead ({e}); frames render after exposure");
     }
 }
 

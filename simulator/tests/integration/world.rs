@@ -198,9 +198,23 @@ async fn the_settled_world_is_predicted_exactly_while_the_rig_settles() {
 async fn a_rig_rendering_ahead_traces_the_settled_world_before_its_frames() {
     let _turn = crate::grbl_peer::alongside();
     let w = world();
-    w.render_ahead().unwrap();
     let bank = w.rig().switch_banks[0].clone();
     let mut lamps = SimSwitchBank::new(bank, w.clone());
+    // Off (no run drives the rig): a change traces nothing.
+    w.set_render_ahead(true).unwrap();
+    w.set_render_ahead(false).unwrap();
+    lamps.set(2, true).await.unwrap();
+    w.wait_render_ahead();
+    let at = w.snapshot_at(w.clock().now_s() + 10.0);
+    w.renderer().render(&at, "cam1", 0.02, 1.0, 0).unwrap();
+    assert_eq!(
+        w.renderer().radiance_reused(),
+        0,
+        "nothing was traced ahead"
+    );
+    lamps.set(2, false).await.unwrap();
+    // On: the settled world is traced before its frames.
+    w.set_render_ahead(true).unwrap();
     lamps.set(3, true).await.unwrap();
     w.wait_render_ahead();
     let warm = w.rig().lamp("lamp3").unwrap().warmup_s;
