@@ -8,6 +8,7 @@
 //! jogging would make it trace worlds no frame sees); on the virtual clock settling takes no
 //! time.
 
+use std::panic::AssertUnwindSafe;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, Weak};
 use std::time::Duration;
@@ -114,11 +115,7 @@ fn work(shared: &Shared, world: &Weak<World>) {
             }
         }
         std::thread::sleep(BURST);
-        {
-            let mut wanted = shared.lock();
-            wanted.changed = false;
-            wanted.busy = true;
-        }
+        let _busy = Busy::start(shared);
         if let Some(world) = world.upgrade()
             && let Some(settled) = world.settled_snapshot()
         {
@@ -126,11 +123,31 @@ fn work(shared: &Shared, world: &Weak<World>) {
                 if shared.lock().changed || !shared.on.load(Ordering::Relaxed) {
                     break;
                 }
-                // A failing trace fails the frame's own render too, which reports it.
-                let _ = world.renderer().render_ahead(&settled, &camera.id);
+                // A failing or panicking trace fails the frame's own render too, which reports
+                // it; the worker lives on to guess the next world.
+                let _ = std::panic::catch_unwind(AssertUnwindSafe(|| {
+                    world.renderer().render_ahead(&settled, &camera.id)
+                }));
             }
         }
-        shared.lock().busy = false;
-        shared.wake.notify_all();
+    }
+}
+
+/// The worker's busy flag, set while it traces and cleared however the trace ends.
+struct Busy<'a>(&'a Shared);
+
+impl<'a> Busy<'a> {
+    fn start(shared: &'a Shared) -> Busy<'a> {
+        let mut wanted = shared.lock();
+        wanted.changed = false;
+        wanted.busy = true;
+        Busy(shared)
+    }
+}
+
+impl Drop for Busy<'_> {
+    fn drop(&mut self) {
+        self.0.lock().busy = false;
+        self.0.wake.notify_all();
     }
 }

@@ -18,6 +18,22 @@ fn image_bytes(width: u32, height: u32) -> usize {
     width as usize * height as usize * 3 * std::mem::size_of::<f32>()
 }
 
+/// The key of camera `camera_id`'s view of `world`: every field but the time. `{:?}` prints
+/// floats so that they read back exactly, so equal keys mean equal worlds; the destructuring
+/// names every field, so a field added to the snapshot must be placed here to compile.
+fn key_of(camera_id: &str, world: &WorldSnapshot) -> String {
+    let WorldSnapshot {
+        rig_time_s: _,
+        axes,
+        lamps,
+        laser,
+        cart_mm,
+        fixture,
+        fixture_pose,
+    } = world;
+    format!("{camera_id}|{axes:?}|{lamps:?}|{laser:?}|{cart_mm:?}|{fixture:?}|{fixture_pose:?}")
+}
+
 /// The radiance images a renderer keeps between frames, and how many frames reused one.
 #[derive(Debug)]
 pub struct KeptRadiance {
@@ -89,12 +105,7 @@ impl KeptRadiance {
         (width, height): (u32, u32),
         trace: impl FnOnce() -> Result<RadianceImage, E>,
     ) -> Result<(Arc<RadianceImage>, bool), E> {
-        let untimed = WorldSnapshot {
-            rig_time_s: 0.0,
-            ..world.clone()
-        };
-        // `{:?}` prints floats so that they read back exactly: equal keys, equal worlds.
-        let key = format!("{camera_id}|{untimed:?}");
+        let key = key_of(camera_id, world);
         let mut traced = false;
         let image = self.images.try_get(key, image_bytes(width, height), || {
             traced = true;

@@ -16,6 +16,7 @@ impl Grbl {
                 });
             }
         }
+        self.world.settling();
     }
 
     pub(super) fn lose_position(&self) {
@@ -108,6 +109,7 @@ impl Grbl {
             cmd_no,
             fails,
         });
+        self.world.settling();
     }
 
     /// Starts `block` at rig time `start`.
@@ -153,6 +155,8 @@ impl Grbl {
             end_s,
             alarm,
         });
+        // A render-ahead guesses this move's end; the next block starts a new guess.
+        self.world.settling();
     }
 
     /// Finishes what is due at `t` and starts queued moves, chaining them back to back.
