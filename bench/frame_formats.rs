@@ -1,19 +1,21 @@
 //! What a raw frame costs to store, per format (issue 16: choose the frame format by
-//! measurement): one 1024×768 16-bit frame of the simulated cameras' test pattern (a moving
-//! grating with 4 bits of sensor-like noise) encoded on one core as the dataset's PNG
-//! (`encode_png16`: the fastest deflate and the Up filter, with its sBIT and metadata), the
-//! dataset's stored PNG (what a writer behind the cameras writes every other frame as), PNG
-//! with fast deflate and the adaptive filter (the dataset's format before), with fast deflate
-//! and no filter, with the fastest deflate and the Up filter, stored PNG (no compression), and
-//! the raw big-endian samples; then its SHA-256 and one durable write (write, fsync) of each result to the scratch
-//! disk. Prints one JSON object per format with the time per frame, the size against raw, and
-//! the frames per second that 8 cameras could reach on 2 cores if encoding were all they did.
+//! measurement): 1024×768 16-bit frames of the simulated cameras' test pattern (a moving
+//! grating with 4 bits of sensor-like noise), or a run's own frames (a run directory among
+//! the arguments: a laser sweep's frames are mostly dark, at the camera's bit depth), each
+//! encoded on one core as the dataset's PNG (`encode_png16`: the fastest deflate and the Up
+//! filter, with its sBIT and metadata), the dataset's stored PNG (what a writer behind the
+//! cameras writes every other frame as), PNG with the fastest deflate (fdeflate) and each
+//! filter, with zlib's level 1, stored PNG (no compression), and the raw big-endian samples;
+//! then its SHA-256 and one durable write (write, fsync) of each result to the scratch disk.
+//! Prints one JSON object per format with the time per frame, the size against raw, and the
+//! frames per second that 8 cameras could reach on 2 cores if encoding were all they did.
 //!
 //! Then the same for HDR frames (f32 RGB OpenEXR, what a bracket merges into): a bracket of
 //! three test patterns (5, 20 and 80 ms) merged with hat weights into DN per second, encoded
 //! with each lossless OpenEXR compression.
 //!
-//! Run: `cargo bench --bench frame_formats [-- FRAMES]` (default 24 frames per format).
+//! Run: `cargo bench --bench frame_formats [-- FRAMES [RUN_DIR]]` (default 24 frames per
+//! format).
 
 use std::io::Write;
 use std::time::Instant;
@@ -23,20 +25,37 @@ use stagehand_dataset::exr_hdr::{Compression, encode_exr_with};
 use stagehand_dataset::png16::{Deflate, encode_png16, encode_png16_with};
 use stagehand_simulator::sim_devices::test_pattern;
 
-/// Encodes one frame of samples `P` into a file's bytes.
-type Encoder<P> = Box<dyn Fn(&[P]) -> Vec<u8>>;
+/// Encodes one frame `F` into a file's bytes.
+type Encoder<F> = Box<dyn Fn(&F) -> Vec<u8>>;
 
 const WIDTH: u32 = 1024;
 const HEIGHT: u32 = 768;
 
+/// A raw frame: the sensor's digital numbers and its bit depth.
+struct Raw {
+    dn: Vec<u16>,
+    bits: u8,
+}
+
+impl Raw {
+    /// The samples as a PNG stores them: MSB-aligned to 16 bits.
+    fn aligned(&self) -> Vec<u8> {
+        let shift = 16 - u32::from(self.bits.min(16));
+        self.dn
+            .iter()
+            .flat_map(|v| (v << shift).to_be_bytes())
+            .collect()
+    }
+}
+
 /// The frame's samples as a 16-bit PNG with `compression` and `filter`.
-fn png(pixels: &[u16], compression: png::Compression, filter: png::Filter) -> Vec<u8> {
-    let data: Vec<u8> = pixels.iter().flat_map(|v| v.to_be_bytes()).collect();
+fn png(frame: &Raw, compression: png::DeflateCompression, filter: png::Filter) -> Vec<u8> {
+    let data = frame.aligned();
     let mut out = Vec::with_capacity(data.len() + 4096);
     let mut encoder = png::Encoder::new(&mut out, WIDTH, HEIGHT);
     encoder.set_color(png::ColorType::Rgb);
     encoder.set_depth(png::BitDepth::Sixteen);
-    encoder.set_compression(compression);
+    encoder.set_deflate_compression(compression);
     encoder.set_filter(filter);
     let mut writer = encoder.write_header().expect("header");
     writer.write_image_data(&data).expect("data");
@@ -44,56 +63,99 @@ fn png(pixels: &[u16], compression: png::Compression, filter: png::Filter) -> Ve
     out
 }
 
-fn main() {
-    let frames: usize = std::env::args()
-        .skip(1)
-        .find_map(|a| a.parse().ok())
-        .unwrap_or(24);
-    let patterns: Vec<Vec<u16>> = (0..frames as u64)
-        .map(|t| test_pattern(WIDTH, HEIGHT, 16, 7, 1000 * (t + 1)))
+/// Up to `n` frames of the run directory `dir`'s `frames/` (a real capture's raw frames: a
+/// laser sweep's are mostly dark, at the camera's bit depth), each 1024×768.
+fn frames_of_run(dir: &std::path::Path, n: usize) -> Vec<Raw> {
+    let mut paths: Vec<_> = std::fs::read_dir(dir.join("frames"))
+        .expect("a run directory with frames/")
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "png"))
         .collect();
+    paths.sort();
+    paths
+        .iter()
+        .take(n)
+        .map(|p| {
+            let bytes = std::fs::read(p).expect("read frame");
+            let d = stagehand_dataset::png16::decode_png16("bench", &bytes).expect("decode");
+            assert_eq!((d.width, d.height), (WIDTH, HEIGHT), "{}", p.display());
+            Raw {
+                dn: d.pixels,
+                bits: d.significant_bits,
+            }
+        })
+        .collect()
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let frames: usize = args.iter().find_map(|a| a.parse().ok()).unwrap_or(24);
+    // A run directory among the arguments: its frames instead of the test pattern.
+    let run = args
+        .iter()
+        .map(std::path::Path::new)
+        .find(|p| p.join("frames").is_dir());
+    let patterns: Vec<Raw> = match run {
+        Some(dir) => frames_of_run(dir, frames),
+        None => (0..frames as u64)
+            .map(|t| Raw {
+                dn: test_pattern(WIDTH, HEIGHT, 16, 7, 1000 * (t + 1)),
+                bits: 16,
+            })
+            .collect(),
+    };
     let raw_bytes = (WIDTH * HEIGHT * 3 * 2) as f64;
-    let formats: Vec<(&str, Encoder<u16>)> = vec![
+    let fdeflate = png::DeflateCompression::FdeflateUltraFast;
+    let zlib1 = png::DeflateCompression::Level(1);
+    let stored = png::DeflateCompression::NoCompression;
+    let mut formats: Vec<(&str, Encoder<Raw>)> = vec![
         (
             "png16 as the dataset stores it",
-            Box::new(|p| encode_png16("bench", WIDTH, HEIGHT, p, 16, "{}").expect("png16")),
+            Box::new(|f| encode_png16("bench", WIDTH, HEIGHT, &f.dn, f.bits, "{}").expect("png16")),
         ),
         (
             "png16 stored, as the dataset stores every other frame when behind",
-            Box::new(|p| {
-                encode_png16_with("bench", WIDTH, HEIGHT, p, 16, "{}", Deflate::Stored)
+            Box::new(|f| {
+                encode_png16_with("bench", WIDTH, HEIGHT, &f.dn, f.bits, "{}", Deflate::Stored)
                     .expect("png16")
             }),
         ),
-        (
-            "png fast deflate, adaptive filter (stored until 2026-12)",
-            Box::new(|p| png(p, png::Compression::Fast, png::Filter::Adaptive)),
-        ),
-        (
-            "png fast deflate, no filter",
-            Box::new(|p| png(p, png::Compression::Fast, png::Filter::NoFilter)),
-        ),
-        (
-            "png fastest deflate, Up filter",
-            Box::new(|p| png(p, png::Compression::Fastest, png::Filter::Up)),
-        ),
-        (
-            "png stored (no compression)",
-            Box::new(|p| png(p, png::Compression::NoCompression, png::Filter::NoFilter)),
-        ),
-        (
-            "raw big-endian samples",
-            Box::new(|p| p.iter().flat_map(|v| v.to_be_bytes()).collect()),
-        ),
+        ("raw big-endian samples", Box::new(Raw::aligned)),
     ];
+    // The png crate's fastest deflate is fdeflate; its levels are zlib's (flate2).
+    let variants = [
+        ("png fastest deflate, Up filter", fdeflate, png::Filter::Up),
+        (
+            "png fastest deflate, no filter",
+            fdeflate,
+            png::Filter::NoFilter,
+        ),
+        (
+            "png fastest deflate, Sub filter",
+            fdeflate,
+            png::Filter::Sub,
+        ),
+        (
+            "png fastest deflate, adaptive",
+            fdeflate,
+            png::Filter::Adaptive,
+        ),
+        ("png zlib level 1, no filter", zlib1, png::Filter::NoFilter),
+        ("png zlib level 1, Up filter", zlib1, png::Filter::Up),
+        ("png stored (no compression)", stored, png::Filter::NoFilter),
+    ];
+    formats.extend(variants.into_iter().map(|(name, compression, filter)| {
+        let encode: Encoder<Raw> = Box::new(move |f| png(f, compression, filter));
+        (name, encode)
+    }));
     measure(&formats, &patterns, raw_bytes);
     let brackets: Vec<Vec<f32>> = (0..frames as u64).map(bracket).collect();
-    let exr = |compression: Compression| -> Encoder<f32> {
+    let exr = |compression: Compression| -> Encoder<Vec<f32>> {
         Box::new(move |p| {
             encode_exr_with("bench", WIDTH, HEIGHT, p, "{}", compression).expect("exr")
         })
     };
-    let hdr_formats: Vec<(&str, Encoder<f32>)> = vec![
+    let hdr_formats: Vec<(&str, Encoder<Vec<f32>>)> = vec![
         (
             "exr f32 ZIP16 (the dataset's HDR frames until 2026-12-04)",
             exr(Compression::ZIP16),
@@ -136,7 +198,7 @@ fn bracket(t: u64) -> Vec<f32> {
 
 /// Encodes, hashes and durably writes every frame in each of `formats`, printing one JSON
 /// object per format (`raw_bytes`: the frame's uncompressed size).
-fn measure<P>(formats: &[(&str, Encoder<P>)], frames_in: &[Vec<P>], raw_bytes: f64) {
+fn measure<F>(formats: &[(&str, Encoder<F>)], frames_in: &[F], raw_bytes: f64) {
     let frames = frames_in.len();
     let scratch = tempfile::tempdir().expect("scratch");
     // Every encoder once first, so that none pays for the process's first allocations.
@@ -145,7 +207,7 @@ fn measure<P>(formats: &[(&str, Encoder<P>)], frames_in: &[Vec<P>], raw_bytes: f
     }
     for (name, encode) in formats {
         let started = Instant::now();
-        let encoded: Vec<Vec<u8>> = frames_in.iter().map(|p| encode(p)).collect();
+        let encoded: Vec<Vec<u8>> = frames_in.iter().map(encode).collect();
         let encode_s = started.elapsed().as_secs_f64() / frames as f64;
         let started = Instant::now();
         for e in &encoded {

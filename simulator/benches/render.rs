@@ -287,12 +287,20 @@ fn child(preset: &str) -> Result<(), Box<dyn std::error::Error>> {
                     "step_s_mean": mean,
                     "step_s_best": best,
                     "cpu_s_per_step": cpu / reps.max(1) as f64,
+                    "step_s": times,
                 }))
             })?;
+            let steps: Vec<String> = result["step_s"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .map(|t| format!("{:.3}", t.as_f64().unwrap_or(f64::NAN)))
+                .collect();
             eprintln!(
-                "{preset} {scene} {n} thread(s): cold {:.2} s, step {:.3} s",
+                "{preset} {scene} {n} thread(s): cold {:.2} s, step {:.3} s (each: {})",
                 result["cold_step_s"].as_f64().unwrap_or(f64::NAN),
-                result["step_s_mean"].as_f64().unwrap_or(f64::NAN)
+                result["step_s_mean"].as_f64().unwrap_or(f64::NAN),
+                steps.join(" ")
             );
             println!("{RESULT_PREFIX}{result}");
         }

@@ -240,11 +240,11 @@ impl Renderer {
             .zip(radiance.rgb.par_chunks(width * 3))
             .enumerate()
             .for_each(|(y, (row, rad))| {
-                for x in 0..width {
+                let pixels = row.chunks_exact_mut(3).zip(rad.chunks_exact(3));
+                for (x, (out, rgb)) in pixels.enumerate() {
                     let index = (y * width + x) as u64;
-                    let rgb = [rad[x * 3], rad[x * 3 + 1], rad[x * 3 + 2]];
-                    row[x * 3..x * 3 + 3]
-                        .copy_from_slice(&sensor.digitise_rgb_with(&dark, rgb, index));
+                    let rgb = [rgb[0], rgb[1], rgb[2]];
+                    out.copy_from_slice(&sensor.digitise_rgb_with(&dark, rgb, index));
                 }
             });
         let mut notes = radiance.notes.clone();

@@ -413,8 +413,8 @@ impl<'a> Scene<'a> {
         for (li, light) in self.lights.iter().enumerate() {
             // One random rotation per pixel, sample and light (Cranley–Patterson) shifts
             // every stratum of the light: stratified, and one hash instead of one per point.
-            let rotation = hash3(JITTER_KEY, pixel, (li as u64) << 32 | sub as u64, 1);
-            let jitter = |dim: u32| unit_f32(rotation.rotate_left(24 * dim));
+            // Hashed only where a light is sampled at more than one point.
+            let rotation = || hash3(JITTER_KEY, pixel, (li as u64) << 32 | sub as u64, 1);
             let maps = self.maps.get(li);
             match light.emitter {
                 Emitter::Halogen {
@@ -431,6 +431,8 @@ impl<'a> Scene<'a> {
                     }
                     let per = (n / spp).max(1);
                     let side = (n as f32).sqrt().round().max(1.0) as u32;
+                    let rotation = rotation();
+                    let jitter = |dim: u32| unit_f32(rotation.rotate_left(24 * dim));
                     let mut sum = Vec3A::ZERO;
                     for m in 0..per {
                         let s = (sub + spp * m) % n;
@@ -450,6 +452,8 @@ impl<'a> Scene<'a> {
                 } => {
                     let n = self.knobs.tube_samples;
                     let per = (n / spp).max(1);
+                    let rotation = rotation();
+                    let jitter = |dim: u32| unit_f32(rotation.rotate_left(24 * dim));
                     let stratum = length / n as f32;
                     let mut sum = Vec3A::ZERO;
                     for m in 0..per {
