@@ -14,9 +14,9 @@ use std::f32::consts::{PI, TAU};
 use glam::Vec3A;
 use rayon::prelude::*;
 
+use super::bounce_geometry::{BounceGeometry, cosine_dir, rotation};
 use super::heightfield::HeightGrid;
 use super::irradiance::DirectLight;
-use super::rng::{hash3, unit_f32};
 use super::shadow::shadow_origin;
 use super::surface::Surface;
 use super::texgrid::{LitTexels, TexGrid};
@@ -31,8 +31,6 @@ pub const SKY_AZIMUTHS: usize = 16;
 pub const PROBE_TEXELS: usize = 32;
 /// Most hemisphere rays per texel of the light probe.
 pub const PROBE_RAYS: u32 = 16;
-/// Key of the bounce-ray hash.
-const BOUNCE_KEY: u64 = 0xb0_u64 << 56 | 0x0c_e5a1;
 
 /// What the pass cost and what each bounce added, for the frame notes.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -73,19 +71,6 @@ impl BounceMap {
     }
 }
 
-/// Unit direction for sample `r` of `n` about normal `nrm`: cosine-distributed (Malley),
-/// Hammersley point shifted by the per-texel rotation (u, v).
-#[inline]
-fn cosine_dir(nrm: Vec3A, r: u32, n: u32, u: f32, v: f32) -> Vec3A {
-    let a = ((r as f32 + u) / n as f32).fract();
-    let b = ((r.reverse_bits() as f32) * (1.0 / 4_294_967_296.0) + v).fract();
-    let rad = a.sqrt();
-    let phi = TAU * b;
-    let (t, bt) = nrm.any_orthonormal_pair();
-    let d = t * (rad * phi.cos()) + bt * (rad * phi.sin()) + nrm * (1.0 - a).max(0.0).sqrt();
-    d.normalize_or(nrm)
-}
-
 /// Texels per side of the bounce grid: as fine as the relief, at most 128 per pixel-sample
 /// side (`spp_side`) and at most [`MAX_TEXELS`] — 128² for preview, 256² above.
 pub fn texels(cells: usize, spp_side: u32) -> usize {
@@ -93,7 +78,8 @@ pub fn texels(cells: usize, spp_side: u32) -> usize {
 }
 
 /// Runs `bounces` bounces with `rays` rays per texel per bounce over `surface` (which must
-/// have a relief; `None` otherwise) on a grid of at most `max_texels` per side.
+/// have a relief; `None` otherwise) on a grid of at most `max_texels` per side: the geometry
+/// traced now (see [`compute_with`] for a kept one).
 pub fn compute(
     surface: &dyn Surface,
     light: &DirectLight,
@@ -101,52 +87,52 @@ pub fn compute(
     rays: u32,
     max_texels: usize,
 ) -> Option<BounceMap> {
-    let grid = surface.grid()?;
-    let size = surface.size_mm();
-    let n = grid.cells().clamp(1, max_texels.clamp(1, MAX_TEXELS));
+    let geometry = BounceGeometry::trace(surface, bounces, rays, max_texels)?;
+    Some(compute_with(&geometry, light))
+}
+
+/// The bounce pass under `light` over a relief whose rays' landings `geometry` holds: the
+/// direct irradiance at each texel, then each bounce gathered from the previous bounce's
+/// radiance where the texel's rays land.
+pub fn compute_with(geometry: &BounceGeometry, light: &DirectLight) -> BounceMap {
+    let (n, size) = (geometry.texels_per_side(), geometry.size_mm());
     let mut map = TexGrid::new(n, size);
     let var = map.cell() * map.cell() / 12.0;
-    struct Texel {
-        p: Vec3A,
-        n: Vec3A,
-        albedo: Vec3A,
-    }
-    let texels: Vec<(Texel, Vec3A, u64)> = (0..n * n)
-        .into_par_iter()
-        .map(|k| {
-            let (x, y) = map.centre(k % n, k / n);
-            let (p, nrm) = surface.point(x, y);
-            let albedo = surface
-                .material_at(x, y)
-                .albedo
-                .clamp(Vec3A::ZERO, Vec3A::ONE);
+    let sites = geometry.sites();
+    let direct: Vec<(Vec3A, u64)> = sites
+        .par_iter()
+        .map(|site| {
             let mut r = 0;
-            let e = light.irradiance(p, nrm, var, |_| 1.0, &mut r);
-            (Texel { p, n: nrm, albedo }, e, r)
+            let e = light.irradiance(site.p, site.n, var, |_| 1.0, &mut r);
+            (e, r)
         })
         .collect();
-    let shadow_rays = texels.iter().map(|t| t.2).sum();
-    let direct_mean = texels.iter().map(|t| t.1.element_sum()).sum::<f32>() / (3 * n * n) as f32;
+    let shadow_rays = direct.iter().map(|t| t.1).sum();
+    let direct_mean = direct.iter().map(|t| t.0.element_sum()).sum::<f32>() / (3 * n * n) as f32;
     // Outgoing radiance of the previous bounce, and the indirect total.
     let mut radiance = TexGrid::new(n, size);
-    for (v, t) in radiance.values_mut().iter_mut().zip(&texels) {
-        *v = t.0.albedo * t.1 * (1.0 / PI);
+    for ((v, site), (e, _)) in radiance.values_mut().iter_mut().zip(sites).zip(&direct) {
+        *v = site.albedo * *e * (1.0 / PI);
     }
-    let rays = rays.max(1);
+    let rays = geometry.rays();
+    let bounces = geometry.bounces();
     let mut added = Vec::new();
     for bounce in 0..bounces {
         let prev = &radiance;
-        let gathered: Vec<Vec3A> = texels
-            .par_iter()
-            .enumerate()
-            .map(|(k, (t, _, _))| {
-                let prev = |q: Vec3A| prev.at(q.x, q.y);
-                gather(grid, t.p, t.n, k as u64, bounce as u64, rays, &prev)
+        let gathered: Vec<Vec3A> = (0..sites.len())
+            .into_par_iter()
+            .map(|k| {
+                let sum = geometry
+                    .landings(bounce, k)
+                    .iter()
+                    .filter(|q| BounceGeometry::lands(q))
+                    .fold(Vec3A::ZERO, |sum, q| sum + prev.at(q[0], q[1]));
+                irradiance_of(sum, rays)
             })
             .collect();
         let mut next = TexGrid::new(n, size);
-        for ((out, e), (t, _, _)) in next.values_mut().iter_mut().zip(&gathered).zip(&texels) {
-            *out = t.albedo * *e * (1.0 / PI);
+        for ((out, e), site) in next.values_mut().iter_mut().zip(&gathered).zip(sites) {
+            *out = site.albedo * *e * (1.0 / PI);
         }
         for (acc, e) in map.values_mut().iter_mut().zip(&gathered) {
             *acc += *e;
@@ -159,7 +145,7 @@ pub fn compute(
         });
         radiance = next;
     }
-    Some(BounceMap {
+    BounceMap {
         lit: map.lit_texels(),
         indirect: map,
         stats: BounceStats {
@@ -169,7 +155,19 @@ pub fn compute(
             shadow_rays,
             added,
         },
-    })
+    }
+}
+
+/// Irradiance from the `sum` of the radiance `rays` cosine-distributed rays saw (π/N Σ L),
+/// zero where not finite.
+#[inline]
+fn irradiance_of(sum: Vec3A, rays: u32) -> Vec3A {
+    let e = sum * (PI / rays as f32);
+    if e.is_finite() {
+        e.max(Vec3A::ZERO)
+    } else {
+        Vec3A::ZERO
+    }
 }
 
 /// The effect plan's light probe: the first bounce under the frame's actual light on a coarse
@@ -225,8 +223,7 @@ fn gather(
     rays: u32,
     radiance: &dyn Fn(Vec3A) -> Vec3A,
 ) -> Vec3A {
-    let h = hash3(BOUNCE_KEY, texel, bounce, 0);
-    let (u, v) = (unit_f32(h), unit_f32(h.rotate_left(24)));
+    let (u, v) = rotation(texel, bounce);
     let o = shadow_origin(p, nrm);
     let mut sum = Vec3A::ZERO;
     for r in 0..rays {
@@ -237,12 +234,7 @@ fn gather(
             sum += radiance(o + d * hit.t);
         }
     }
-    let e = sum * (PI / rays as f32);
-    if e.is_finite() {
-        e.max(Vec3A::ZERO)
-    } else {
-        Vec3A::ZERO
-    }
+    irradiance_of(sum, rays)
 }
 
 /// What the plan needs of a relief for interreflection: its smallest sky-view fraction and
@@ -416,6 +408,60 @@ mod tests {
         assert!(three.irradiance_at(5.0, 0.0).x > bottom);
         assert_eq!(one.stats.rays, 128 * 128 * 64);
         assert!(one.stats.shadow_rays > 0);
+    }
+
+    /// A bounce pass marching its rays now (the pass before its geometry was kept): bounce
+    /// k gathers, by marching, the previous bounce's radiance.
+    fn marched(relief: &Relief, light: &DirectLight, bounces: u32, rays: u32) -> TexGrid {
+        let n = relief.grid.cells();
+        let mut total = TexGrid::new(n, relief.size);
+        let var = total.cell() * total.cell() / 12.0;
+        let sites: Vec<(Vec3A, Vec3A, Vec3A)> = (0..n * n)
+            .map(|k| {
+                let (x, y) = total.centre(k % n, k / n);
+                let (p, nrm) = relief.point(x, y);
+                (p, nrm, light.irradiance(p, nrm, var, |_| 1.0, &mut 0))
+            })
+            .collect();
+        let albedo = Vec3A::splat(relief.albedo);
+        let mut radiance = TexGrid::new(n, relief.size);
+        for (v, (_, _, e)) in radiance.values_mut().iter_mut().zip(&sites) {
+            *v = albedo * *e * (1.0 / PI);
+        }
+        for bounce in 0..bounces {
+            let prev = radiance.clone();
+            for (k, (p, nrm, _)) in sites.iter().enumerate() {
+                let at = |q: Vec3A| prev.at(q.x, q.y);
+                let e = gather(&relief.grid, *p, *nrm, k as u64, bounce as u64, rays, &at);
+                total.values_mut()[k] += e;
+                radiance.values_mut()[k] = albedo * e * (1.0 / PI);
+            }
+        }
+        total
+    }
+
+    /// With the geometry traced once and kept, the pass under a lamp and under the laser is
+    /// the marched pass, bit for bit.
+    #[test]
+    fn a_kept_geometry_gives_the_marched_pass_bit_for_bit() {
+        let relief = grooves(0.8);
+        let geometry = BounceGeometry::trace(&relief, 2, 8, 256).expect("relief");
+        let lamp = overhead();
+        let side = [Light {
+            emitter: Emitter::Halogen {
+                centre: Vec3A::new(600.0, -200.0, 300.0),
+                u: Vec3A::X,
+                v: Vec3A::Y,
+                intensity: 640_000.0,
+            },
+            ..lamp[0].clone()
+        }];
+        for lights in [&lamp[..], &side[..]] {
+            let light = direct(lights, &relief.grid);
+            let kept = compute_with(&geometry, &light);
+            assert_eq!(kept.indirect, marched(&relief, &light, 2, 8));
+            assert!(kept.irradiance_at(5.0, 0.0).x > 0.0);
+        }
     }
 
     /// Same map at 1 and 4 threads, bit for bit.

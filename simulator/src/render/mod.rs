@@ -23,6 +23,7 @@
 //! cameras do) or from inside the rayon pool, not from both at once.
 
 pub mod bounce;
+pub mod bounce_geometry;
 pub mod config;
 pub mod dark_spans;
 pub mod effects;
@@ -100,14 +101,32 @@ pub struct Renderer {
     as_built: AsBuilt,
 }
 
+/// Memory the bounce passes' geometry may hold (a fixture's is 1 MB at preview, 12 MB at
+/// standard; the reference preset's, 70 MB, is traced with each pass instead).
+const BOUNCE_GEOMETRY_BUDGET_BYTES: usize = 128 << 20;
+
 /// Per-frame light-transport results shared by the cameras of one rig step (same sample,
-/// same lights), and per-sample relief statistics.
-#[derive(Debug, Default)]
+/// same lights), per-sample relief statistics, and the bounce passes' light-independent
+/// geometry per sample.
+#[derive(Debug)]
 struct TransportCaches {
     relief: pass_cache::PassCache<Option<bounce::ReliefStats>>,
+    bounce_geometry: kept::Kept<String, bounce_geometry::BounceGeometry>,
     bounce: pass_cache::PassCache<Option<bounce::BounceMap>>,
     probe: pass_cache::PassCache<Option<f32>>,
     subsurface: pass_cache::PassCache<Option<subsurface::SubsurfaceMap>>,
+}
+
+impl Default for TransportCaches {
+    fn default() -> Self {
+        TransportCaches {
+            relief: Default::default(),
+            bounce_geometry: kept::Kept::with_budget(BOUNCE_GEOMETRY_BUDGET_BYTES),
+            bounce: Default::default(),
+            probe: Default::default(),
+            subsurface: Default::default(),
+        }
+    }
 }
 
 /// Noise-free radiance seen by one camera, before the sensor.
@@ -566,15 +585,8 @@ impl Renderer {
         };
         let bounce = (lit && plan.interreflection.on).then(|| {
             self.passes.bounce.get(key("bounce"), || {
-                let cells = sample.grid.as_ref().map_or(1, |g| g.cells());
-                let texels = bounce::texels(cells, knobs.spp_side);
-                bounce::compute(
-                    sample.as_ref(),
-                    &direct,
-                    plan.bounces,
-                    knobs.bounce_rays,
-                    texels,
-                )
+                let geometry = self.bounce_geometry(sample, plan.bounces, knobs)?;
+                Some(bounce::compute_with(&geometry, &direct))
             })
         });
         let subsurface = (lit && plan.subsurface.on).then(|| {
@@ -583,6 +595,29 @@ impl Renderer {
             })
         });
         Transport { bounce, subsurface }
+    }
+
+    /// The light-independent geometry of `sample`'s bounce passes (`None` without a relief):
+    /// kept per sample, bounce count and rays, or traced for this pass when too large to keep.
+    fn bounce_geometry(
+        &self,
+        sample: &Arc<Sample>,
+        bounces: u32,
+        knobs: &Knobs,
+    ) -> Option<Arc<bounce_geometry::BounceGeometry>> {
+        let grid = sample.grid.as_ref()?;
+        let texels = bounce::texels(grid.cells(), knobs.spp_side);
+        let n = bounce_geometry::texels_per_side(grid, texels);
+        let rays = knobs.bounce_rays;
+        let key = format!("{}|{n}|{bounces}|{rays}", relief_key(sample));
+        let bytes = bounce_geometry::geometry_bytes(n, bounces, rays);
+        self.passes
+            .bounce_geometry
+            .try_get(key, bytes, || {
+                bounce_geometry::BounceGeometry::trace(sample.as_ref(), bounces, rays, texels)
+                    .ok_or(())
+            })
+            .ok()
     }
 
     fn notes(&self, n: &NoteInputs<'_>) -> Value {
