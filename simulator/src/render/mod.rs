@@ -10,8 +10,10 @@
 //! marching), [`shadow`] (per-vertex light visibility for preview), [`geometry`] (poses),
 //! [`lights`], [`laser`], [`shading`] (the BRDF models), [`scene`] (intersection and direct
 //! lighting), [`irradiance`] (direct light at texels), [`subsurface`] (dipole diffusion by
-//! [`fft`] convolution), [`bounce`] (interreflection between relief texels), [`texgrid`],
-//! [`surface`] and [`pass_cache`] (per-step sharing of those passes), [`pixel_samples`]
+//! [`fft`] convolution), [`bounce`] (interreflection between relief texels) and
+//! [`bounce_geometry`] (where its rays land, kept per sample), [`texgrid`], [`surface`],
+//! `transport` (the passes a frame's plan turns on) and [`pass_cache`] (per-step sharing of
+//! those passes), [`pixel_samples`]
 //! (sub-pixel sampling and each camera's lens inversion, kept), [`primary_hits`] (each camera
 //! view's first surfaces, kept while only the light changes), [`kept`] (their memory budget), [`effects`] (the plan), [`sensor`], [`quality`], [`rng`] (counter-based
 //! noise), [`ground_truth`] (depth, normals, material, noise-free radiance per pixel) and
@@ -52,6 +54,7 @@ pub mod shadow;
 pub mod subsurface;
 pub mod surface;
 pub mod texgrid;
+mod transport;
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -87,7 +90,7 @@ pub struct Renderer {
     knobs: Knobs,
     samples: Mutex<HashMap<String, Arc<Sample>>>,
     visibility: shadow::VisibilityCache,
-    passes: TransportCaches,
+    passes: transport::TransportCaches,
     /// Each camera's undistorted sample points (the lens inversion), computed once.
     lens_tables: pixel_samples::LensTables,
     /// Each camera view's primary hits, kept while only the light changes.
@@ -99,34 +102,6 @@ pub struct Renderer {
     dark_spans_skipped: AtomicU64,
     /// The rig as built: nominal unless `[sim.as_built]` asks for deviations.
     as_built: AsBuilt,
-}
-
-/// Memory the bounce passes' geometry may hold (a fixture's is 1 MB at preview, 12 MB at
-/// standard; the reference preset's, 70 MB, is traced with each pass instead).
-const BOUNCE_GEOMETRY_BUDGET_BYTES: usize = 128 << 20;
-
-/// Per-frame light-transport results shared by the cameras of one rig step (same sample,
-/// same lights), per-sample relief statistics, and the bounce passes' light-independent
-/// geometry per sample.
-#[derive(Debug)]
-struct TransportCaches {
-    relief: pass_cache::PassCache<Option<bounce::ReliefStats>>,
-    bounce_geometry: kept::Kept<String, bounce_geometry::BounceGeometry>,
-    bounce: pass_cache::PassCache<Option<bounce::BounceMap>>,
-    probe: pass_cache::PassCache<Option<f32>>,
-    subsurface: pass_cache::PassCache<Option<subsurface::SubsurfaceMap>>,
-}
-
-impl Default for TransportCaches {
-    fn default() -> Self {
-        TransportCaches {
-            relief: Default::default(),
-            bounce_geometry: kept::Kept::with_budget(BOUNCE_GEOMETRY_BUDGET_BYTES),
-            bounce: Default::default(),
-            probe: Default::default(),
-            subsurface: Default::default(),
-        }
-    }
 }
 
 /// Noise-free radiance seen by one camera, before the sensor.
@@ -178,7 +153,7 @@ impl Renderer {
             knobs,
             samples: Mutex::new(HashMap::new()),
             visibility: shadow::VisibilityCache::default(),
-            passes: TransportCaches::default(),
+            passes: transport::TransportCaches::default(),
             lens_tables: pixel_samples::LensTables::default(),
             primary_hits: primary_hits::PrimaryHits::default(),
             radiance: kept_radiance::KeptRadiance::for_rig(rig),
@@ -418,7 +393,7 @@ impl Renderer {
             let grid = sample.grid.as_ref().filter(|_| lit)?;
             Some(self.visibility.get(&sample.name, grid, light))
         };
-        let transport = self.transport(
+        let transport = self.passes.run(
             &sample,
             &lights,
             laser.as_ref().map(|l| &l.0),
@@ -558,68 +533,6 @@ impl Renderer {
             })
     }
 
-    /// Runs (or fetches, when another camera of the same step already has) the light-transport
-    /// passes the plan turned on; nothing at all for passes that are off or dark frames.
-    fn transport(
-        &self,
-        sample: &Arc<Sample>,
-        lights: &[lights::Light],
-        laser: Option<&LaserSheet>,
-        plan: &effects::Plan,
-        knobs: &Knobs,
-        lit: bool,
-    ) -> Transport {
-        let direct = irradiance::DirectLight {
-            lights,
-            laser,
-            grid: sample.grid.as_ref(),
-            shadows: plan.shadows.on,
-            tube_points: knobs.tube_samples,
-        };
-        // Exact description of every input: equal keys mean equal results.
-        let key = |pass: &str| {
-            format!(
-                "{pass}|{}|{lights:?}|{laser:?}|{}|{knobs:?}",
-                sample.name, plan.shadows.on
-            )
-        };
-        let bounce = (lit && plan.interreflection.on).then(|| {
-            self.passes.bounce.get(key("bounce"), || {
-                let geometry = self.bounce_geometry(sample, plan.bounces, knobs)?;
-                Some(bounce::compute_with(&geometry, &direct))
-            })
-        });
-        let subsurface = (lit && plan.subsurface.on).then(|| {
-            self.passes.subsurface.get(key("subsurface"), || {
-                subsurface::compute(sample.as_ref(), &direct, knobs.dipole_samples)
-            })
-        });
-        Transport { bounce, subsurface }
-    }
-
-    /// The light-independent geometry of `sample`'s bounce passes (`None` without a relief):
-    /// kept per sample, bounce count and rays, or traced for this pass when too large to keep.
-    fn bounce_geometry(
-        &self,
-        sample: &Arc<Sample>,
-        bounces: u32,
-        knobs: &Knobs,
-    ) -> Option<Arc<bounce_geometry::BounceGeometry>> {
-        let grid = sample.grid.as_ref()?;
-        let texels = bounce::texels(grid.cells(), knobs.spp_side);
-        let n = bounce_geometry::texels_per_side(grid, texels);
-        let rays = knobs.bounce_rays;
-        let key = format!("{}|{n}|{bounces}|{rays}", relief_key(sample));
-        let bytes = bounce_geometry::geometry_bytes(n, bounces, rays);
-        self.passes
-            .bounce_geometry
-            .try_get(key, bytes, || {
-                bounce_geometry::BounceGeometry::trace(sample.as_ref(), bounces, rays, texels)
-                    .ok_or(())
-            })
-            .ok()
-    }
-
     fn notes(&self, n: &NoteInputs<'_>) -> Value {
         let lights: Vec<Value> = n
             .scene
@@ -689,34 +602,9 @@ struct NoteInputs<'a> {
     unknown_lamps: Vec<String>,
     shadow_rays: u64,
     lit: bool,
-    transport: &'a Transport,
+    transport: &'a transport::Transport,
     /// Pixels adaptive sampling rendered at the full sample count (`None` when off).
     refined: Option<usize>,
-}
-
-/// The frame's light-transport passes, as the plan called for them (`None` when off or dark).
-struct Transport {
-    bounce: Option<Arc<Option<bounce::BounceMap>>>,
-    subsurface: Option<Arc<Option<subsurface::SubsurfaceMap>>>,
-}
-
-impl Transport {
-    /// The passes' counters for the notes' `stats` (zeros for passes not run).
-    fn stats(&self) -> Value {
-        let b = self.bounce.as_ref().and_then(|b| b.as_ref().as_ref());
-        let s = self.subsurface.as_ref().and_then(|s| s.as_ref().as_ref());
-        json!({
-            "bounce_passes": b.map_or(0, |b| b.stats.bounces),
-            "bounce_rays": b.map_or(0, |b| b.stats.rays),
-            "bounce_texels": b.map_or(0, |b| b.stats.texels),
-            "bounce_shadow_rays": b.map_or(0, |b| b.stats.shadow_rays),
-            "bounce_added": b.map_or(Vec::new(), |b| b.stats.added.clone()),
-            "subsurface_passes": s.map_or(0, |s| s.stats.media),
-            "subsurface_texels": s.map_or(0, |s| s.stats.texels),
-            "subsurface_fft": s.map_or(0, |s| s.stats.fft),
-            "subsurface_shadow_rays": s.map_or(0, |s| s.stats.shadow_rays),
-        })
-    }
 }
 
 /// Renders the pixels of `pose` where `want(x, y)` with `pixel` (rows in parallel; the others

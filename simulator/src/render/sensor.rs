@@ -179,9 +179,8 @@ impl Sensor {
     }
 
     /// The 64 bits pixel `pixel`'s shot noise is drawn from and the 64 its read noise is
-    /// drawn from (12 a channel), the second a hash of the first. (Independent hashes would
-    /// spare a dark pixel one, but change every frame's noise; the calibration tests then
-    /// found one camera's rectification off by 22 px: see issue 16's note of 2026-12-04.)
+    /// drawn from (12 a channel), the second a hash of the first. Changing either changes
+    /// every frame's noise (and whether the calibration tests keep their marginal camera).
     #[inline]
     fn noise_bits(&self, pixel: u64) -> (u64, u64) {
         let shot = mix64(self.key ^ pixel.wrapping_mul(0x9e37_79b9_7f4a_7c15));
