@@ -5,7 +5,8 @@
 //! encoded on one core as the dataset's PNG (`encode_png16`: the fastest deflate and the Up
 //! filter, with its sBIT and metadata), the dataset's stored PNG (what a writer behind the
 //! cameras writes every other frame as), PNG with the fastest deflate (fdeflate) and each
-//! filter, with zlib's level 1, stored PNG (no compression), and the raw big-endian samples;
+//! filter, with zlib's level 1, with zlib-rs (zlib-ng's port) at its fast levels and
+//! Huffman-only and RLE strategies, stored PNG (no compression), and the raw big-endian samples;
 //! then its SHA-256 and one durable write (write, fsync) of each result to the scratch disk.
 //! Prints one JSON object per format with the time per frame, the size against raw, and the
 //! frames per second that 8 cameras could reach on 2 cores if encoding were all they did.
@@ -59,6 +60,34 @@ fn png(frame: &Raw, compression: png::DeflateCompression, filter: png::Filter) -
     encoder.set_filter(filter);
     let mut writer = encoder.write_header().expect("header");
     writer.write_image_data(&data).expect("data");
+    writer.finish().expect("finish");
+    out
+}
+
+/// The frame's samples as a 16-bit PNG, Up filter, its image data compressed by zlib-rs
+/// with `config`.
+fn png_zlib_rs(frame: &Raw, config: zlib_rs::DeflateConfig) -> Vec<u8> {
+    let data = frame.aligned();
+    let row = WIDTH as usize * 6;
+    let mut filtered = Vec::with_capacity(data.len() + HEIGHT as usize);
+    for (y, line) in data.chunks_exact(row).enumerate() {
+        filtered.push(2u8);
+        if y == 0 {
+            filtered.extend_from_slice(line);
+        } else {
+            let above = &data[(y - 1) * row..y * row];
+            filtered.extend(line.iter().zip(above).map(|(a, b)| a.wrapping_sub(*b)));
+        }
+    }
+    let mut buf = vec![0u8; zlib_rs::compress_bound(filtered.len())];
+    let (z, rc) = zlib_rs::compress_slice(&mut buf, &filtered, config);
+    assert_eq!(rc, zlib_rs::ReturnCode::Ok);
+    let mut out = Vec::with_capacity(z.len() + 4096);
+    let mut encoder = png::Encoder::new(&mut out, WIDTH, HEIGHT);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Sixteen);
+    let mut writer = encoder.write_header().expect("header");
+    writer.write_chunk(png::chunk::IDAT, z).expect("idat");
     writer.finish().expect("finish");
     out
 }
@@ -144,6 +173,31 @@ fn main() {
         ("png zlib level 1, Up filter", zlib1, png::Filter::Up),
         ("png stored (no compression)", stored, png::Filter::NoFilter),
     ];
+    for (name, level, strategy) in [
+        (
+            "png zlib-rs Huffman only, Up filter",
+            1,
+            zlib_rs::Strategy::HuffmanOnly,
+        ),
+        ("png zlib-rs RLE, Up filter", 1, zlib_rs::Strategy::Rle),
+        (
+            "png zlib-rs level 1, Up filter",
+            1,
+            zlib_rs::Strategy::Default,
+        ),
+        (
+            "png zlib-rs level 2, Up filter",
+            2,
+            zlib_rs::Strategy::Default,
+        ),
+    ] {
+        let config = zlib_rs::DeflateConfig {
+            level,
+            strategy,
+            ..Default::default()
+        };
+        formats.push((name, Box::new(move |f| png_zlib_rs(f, config))));
+    }
     formats.extend(variants.into_iter().map(|(name, compression, filter)| {
         let encode: Encoder<Raw> = Box::new(move |f| png(f, compression, filter));
         (name, encode)

@@ -34,6 +34,27 @@ pub fn is_temp_name(name: &str) -> bool {
 ///
 /// Returns the final path. On error the temp file is removed (best effort).
 pub fn write_atomic(dir: &Path, name: &str, bytes: &[u8]) -> Result<PathBuf> {
+    write(dir, name, bytes, Cache::Keep)
+}
+
+/// [`write_atomic`] for files written once and not read back soon (frames): once durable,
+/// the file's pages leave the page cache. A run streams gigabytes of frames; kept cached they
+/// would fill memory, and the kernel's copy into fresh cache pages costs about twice the CPU
+/// of a copy into recycled ones (3.3–6.5 ms against 1.5–2.8 ms of system time for a 3.7 MB
+/// file with fsync on the 2-core development machine).
+pub fn write_atomic_uncached(dir: &Path, name: &str, bytes: &[u8]) -> Result<PathBuf> {
+    write(dir, name, bytes, Cache::Drop)
+}
+
+/// Whether a written file's pages stay in the page cache.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Cache {
+    Keep,
+    Drop,
+}
+
+/// [`write_atomic`], dropping the file's cached pages after the fsync when `cache` says so.
+fn write(dir: &Path, name: &str, bytes: &[u8], cache: Cache) -> Result<PathBuf> {
     let tmp = dir.join(temp_name(name));
     let dest = dir.join(name);
     let written = (|| {
@@ -46,6 +67,9 @@ pub fn write_atomic(dir: &Path, name: &str, bytes: &[u8]) -> Result<PathBuf> {
             .map_err(|e| StorageError::io("write", &tmp, e))?;
         file.sync_all()
             .map_err(|e| StorageError::io("fsync", &tmp, e))?;
+        if cache == Cache::Drop {
+            drop_cached_pages(&file);
+        }
         drop(file);
         fs::rename(&tmp, &dest).map_err(|e| StorageError::io("rename temp file to", &dest, e))
     })();
@@ -58,6 +82,26 @@ pub fn write_atomic(dir: &Path, name: &str, bytes: &[u8]) -> Result<PathBuf> {
         return Err(err);
     }
     Ok(dest)
+}
+
+/// Asks the kernel to drop `file`'s clean pages from the page cache; best effort (a hint:
+/// nothing is lost if it is ignored).
+#[allow(unsafe_code)]
+fn drop_cached_pages(file: &File) {
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::fd::AsRawFd;
+        // SAFETY: a plain system call on a file descriptor this function borrows.
+        let rc = unsafe { libc::posix_fadvise(file.as_raw_fd(), 0, 0, libc::POSIX_FADV_DONTNEED) };
+        if rc != 0 {
+            tracing::debug!(
+                "written file keeps its cached pages: {}",
+                std::io::Error::from_raw_os_error(rc)
+            );
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    let _ = file;
 }
 
 /// [`write_atomic`] followed by [`fsync_dir`]: the file is durable when this returns.
@@ -124,6 +168,27 @@ mod tests {
             .map(|e| e.file_name())
             .collect();
         assert_eq!(names.len(), 1);
+        Ok(())
+    }
+
+    #[test]
+    fn an_uncached_write_reads_back_whole_and_leaves_no_temp() -> Result<()> {
+        let tmp = tempfile::tempdir().map_err(|e| StorageError::io("create", "tempdir", e))?;
+        // Several pages, so dropping them from the cache is not trivially a no-op.
+        let bytes: Vec<u8> = (0..40_000u32).map(|i| (i * 7 % 251) as u8).collect();
+        let p = write_atomic_uncached(tmp.path(), "f.png", &bytes)?;
+        write_atomic_uncached(tmp.path(), "f.png", &bytes[..9])?;
+        fsync_dir(tmp.path())?;
+        assert_eq!(
+            fs::read(&p).map_err(|e| StorageError::io("read", &p, e))?,
+            &bytes[..9]
+        );
+        let names: Vec<_> = fs::read_dir(tmp.path())
+            .map_err(|e| StorageError::io("list", tmp.path(), e))?
+            .filter_map(|e| e.ok())
+            .map(|e| e.file_name())
+            .collect();
+        assert_eq!(names, vec!["f.png"]);
         Ok(())
     }
 

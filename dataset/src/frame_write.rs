@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
-use crate::atomic::write_atomic;
+use crate::atomic::write_atomic_uncached;
 use crate::checksum::sha256_hex;
 use crate::error::{Result, StorageError};
 use crate::exr_hdr::{HDR_FRAME_COMPRESSION, encode_exr_with};
@@ -101,7 +101,7 @@ pub(crate) fn write_frame(
         }
     };
     let sha256 = sha256_hex(&bytes);
-    let path = write_atomic(frames_dir, &name, &bytes)?;
+    let path = write_atomic_uncached(frames_dir, &name, &bytes)?;
     let ground_truth = match &f.ground_truth {
         Some(truth) => write_ground_truth(frames_dir, &f.meta, truth, &json)?,
         None => Vec::new(),
@@ -116,13 +116,15 @@ pub(crate) fn write_frame(
     })
 }
 
-/// Nice 10 for the calling thread (on Linux a nice value is per thread); best effort.
+/// Nice 19 for the calling thread (on Linux a nice value is per thread); best effort. The
+/// pool's threads together must weigh little against the capture loop's: at nice 10 its 8
+/// threads weighed 880 against a nice-0 thread's 1024, nearly half the CPU when both ran.
 #[allow(unsafe_code)]
 fn lower_this_threads_priority() {
     #[cfg(target_os = "linux")]
     {
         // SAFETY: plain system calls on the calling thread's id, no memory shared.
-        let rc = unsafe { libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, 10) };
+        let rc = unsafe { libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, 19) };
         if rc != 0 {
             tracing::debug!(
                 "frame writer thread keeps its priority: {}",
@@ -132,9 +134,9 @@ fn lower_this_threads_priority() {
     }
 }
 
-/// The pool that encodes and writes frames: twice as many threads as cores (at least 4), so
+/// The pool that encodes and writes frames: four threads per core (at least 8), so
 /// the cores stay busy encoding while some threads wait on fsync, each at a lower scheduling
-/// priority (nice 10), so encoding never delays the capture loop (the writer's memory budget
+/// priority (nice 19), so encoding never delays the capture loop (the writer's memory budget
 /// absorbs the lag). Falls back to rayon's global pool (`None`) if its threads cannot start.
 pub(crate) fn writer_pool() -> Option<&'static rayon::ThreadPool> {
     static POOL: std::sync::OnceLock<Option<rayon::ThreadPool>> = std::sync::OnceLock::new();
@@ -201,7 +203,7 @@ fn write_ground_truth(
                 &json,
             )?;
             let sha256 = sha256_hex(&bytes);
-            let path = write_atomic(frames_dir, &name, &bytes)?;
+            let path = write_atomic_uncached(frames_dir, &name, &bytes)?;
             Ok(WrittenGroundTruth {
                 kind: plane.kind.clone(),
                 path,
