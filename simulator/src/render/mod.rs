@@ -521,16 +521,21 @@ impl Renderer {
         let side = knobs.spp_side;
         let key = format!("{}|{pose:?}|{side}|{tubes}", relief_key(sample));
         let at_first_sight = scene.lit_by_laser_alone();
-        self.primary_hits
-            .get(key, (pose.width, pose.height, side), at_first_sight, || {
+        self.primary_hits.get(
+            key,
+            (pose.width, pose.height, side),
+            at_first_sight,
+            |normals| {
                 primary_hits::HitTable::build(
                     pose.width,
                     pose.height,
                     side,
                     pose.origin,
+                    normals,
                     |x, y, sub| scene.locate_sample(pose, lens, x, y, sub),
                 )
-            })
+            },
+        )
     }
 
     fn notes(&self, n: &NoteInputs<'_>) -> Value {

@@ -10,7 +10,9 @@
 //! the same code as an uncached frame, so frames are bit-identical with or without the table.
 //! Each run of [`SPAN`] pixels along a row also keeps the bounds of its hit points
 //! ([`SpanBounds`]), so a laser frame can skip the runs the sheet cannot reach
-//! (`dark_spans.rs`).
+//! (`dark_spans.rs`). A lamp frame's table also keeps each sample's shading normal where
+//! it fits the budget (the preview preset): every point of a lamp frame is shaded, and
+//! interpolating the relief's normal is a tenth of its cost.
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
@@ -121,42 +123,59 @@ impl SpanBounds {
     }
 }
 
-/// Every sample's primary hit for one camera view, `side`² samples per pixel, row-major, and
-/// the bounds of each run of [`SPAN`] pixels.
+/// Every sample's primary hit for one camera view, `side`² samples per pixel, row-major, the
+/// bounds of each run of [`SPAN`] pixels and, when kept, each sample's shading normal.
 #[derive(Debug)]
 pub struct HitTable {
     side: u32,
     width: u32,
     hits: Vec<PackedHit>,
+    /// Per sample, the shading normal at its hit (zero where nothing was hit); empty when not
+    /// kept.
+    normals: Vec<[f32; 3]>,
     spans: Vec<SpanBounds>,
 }
 
 impl HitTable {
     /// Computes the table for a `width` × `height` camera at `eye` sampled `side` × `side`,
     /// rows in parallel; `locate(x, y, sub)` is the primary hit of sample `sub` of pixel
-    /// (x, y) and its point, computed as the renderer rebuilds it from the kept distance.
+    /// (x, y), its point and its shading normal, computed as the renderer rebuilds them from
+    /// the kept distance. The normals are kept when `normals` is true.
     pub fn build(
         width: u32,
         height: u32,
         side: u32,
         eye: Vec3A,
-        locate: impl Fn(u32, u32, u32) -> (PackedHit, Vec3A) + Sync,
+        normals: bool,
+        locate: impl Fn(u32, u32, u32) -> (PackedHit, Vec3A, Vec3A) + Sync,
     ) -> HitTable {
         let per_pixel = (side * side) as usize;
         let row = width as usize * per_pixel;
         let spans_per_row = spans_per_row(width);
         let mut hits = vec![PackedHit::NOTHING; row * height as usize];
         let mut spans = vec![SpanBounds::EMPTY; spans_per_row * height as usize];
+        let mut kept_normals = vec![[0.0f32; 3]; if normals { hits.len() } else { 0 }];
+        // Without normals each row gets an empty slice to write none into.
+        let normal_rows: Vec<&mut [[f32; 3]]> = if normals {
+            kept_normals.chunks_mut(row.max(1)).collect()
+        } else {
+            (0..height).map(|_| <&mut [[f32; 3]]>::default()).collect()
+        };
         hits.par_chunks_mut(row.max(1))
             .zip(spans.par_chunks_mut(spans_per_row.max(1)))
+            .zip(normal_rows)
             .enumerate()
-            .for_each(|(y, (out, bounds))| {
+            .for_each(|(y, ((out, bounds), normals_out))| {
                 for x in 0..width {
                     let span = &mut bounds[(x / SPAN) as usize];
                     for sub in 0..side * side {
-                        let (hit, p) = locate(x, y as u32, sub);
+                        let (hit, p, n) = locate(x, y as u32, sub);
                         span.include(&hit, p, eye);
-                        out[x as usize * per_pixel + sub as usize] = hit;
+                        let i = x as usize * per_pixel + sub as usize;
+                        out[i] = hit;
+                        if let Some(slot) = normals_out.get_mut(i) {
+                            *slot = n.to_array();
+                        }
                     }
                 }
             });
@@ -164,6 +183,7 @@ impl HitTable {
             side,
             width,
             hits,
+            normals: kept_normals,
             spans,
         }
     }
@@ -185,6 +205,15 @@ impl HitTable {
         self.hits[(y as usize * self.width as usize + x as usize) * per_pixel + sub as usize]
     }
 
+    /// The shading normal at the hit of sample `sub` of pixel (x, y), when the table keeps
+    /// normals.
+    #[inline]
+    pub fn normal(&self, x: u32, y: u32, sub: u32) -> Option<Vec3A> {
+        let per_pixel = (self.side * self.side) as usize;
+        let i = (y as usize * self.width as usize + x as usize) * per_pixel + sub as usize;
+        self.normals.get(i).map(|&n| Vec3A::from_array(n))
+    }
+
     /// Samples per pixel side this table holds.
     pub fn side(&self) -> u32 {
         self.side
@@ -196,11 +225,18 @@ fn spans_per_row(width: u32) -> usize {
     width.div_ceil(SPAN) as usize
 }
 
-/// Bytes a table of `width` × `height` pixels at `side`² samples holds.
-fn table_bytes(width: u32, height: u32, side: u32) -> usize {
+/// Bytes a table of `width` × `height` pixels at `side`² samples holds, with or without
+/// `normals`.
+fn table_bytes(width: u32, height: u32, side: u32, normals: bool) -> usize {
+    let per_sample = std::mem::size_of::<PackedHit>()
+        + if normals {
+            std::mem::size_of::<[f32; 3]>()
+        } else {
+            0
+        };
     (width as usize * height as usize)
         .saturating_mul((side * side) as usize)
-        .saturating_mul(std::mem::size_of::<PackedHit>())
+        .saturating_mul(per_sample)
         .saturating_add(
             (spans_per_row(width) * height as usize)
                 .saturating_mul(std::mem::size_of::<SpanBounds>()),
@@ -239,15 +275,17 @@ impl PrimaryHits {
     /// `side` × `side`, built by `build` when the view is asked for the second time, or the
     /// first when `at_first_sight` (a frame lit by the laser alone: a sweep follows, and the
     /// table spares its first frame the shading beyond the sheet); `None` otherwise, or when
-    /// too large to keep (the caller intersects per frame).
+    /// too large to keep (the caller intersects per frame). `build(normals)` keeps the
+    /// normals too when asked: for a view first kept by a lamp frame, where they fit.
     pub fn get(
         &self,
         key: String,
         (width, height, side): (u32, u32, u32),
         at_first_sight: bool,
-        build: impl FnOnce() -> HitTable,
+        build: impl FnOnce(bool) -> HitTable,
     ) -> Option<Arc<HitTable>> {
-        let bytes = table_bytes(width, height, side);
+        let normals = !at_first_sight && self.tables.keeps(table_bytes(width, height, side, true));
+        let bytes = table_bytes(width, height, side, normals);
         if !at_first_sight && !self.tables.contains(&key) {
             let mut seen = self
                 .seen
@@ -266,7 +304,7 @@ impl PrimaryHits {
                 }
             }
         }
-        self.tables.get(key, bytes, build)
+        self.tables.get(key, bytes, || build(normals))
     }
 
     /// Tables held now.
@@ -285,7 +323,12 @@ mod tests {
     use super::*;
 
     fn table(w: u32, h: u32, side: u32) -> HitTable {
-        HitTable::build(w, h, side, Vec3A::ZERO, |x, y, sub| {
+        table_with(w, h, side, false)
+    }
+
+    /// A test table, keeping the normals (x, y, sub) when `normals`.
+    fn table_with(w: u32, h: u32, side: u32, normals: bool) -> HitTable {
+        HitTable::build(w, h, side, Vec3A::ZERO, normals, |x, y, sub| {
             let hit = PackedHit {
                 t: (x * 1000 + y * 10 + sub) as f32,
                 cos_view: 1.0 / (1 + x) as f32,
@@ -295,7 +338,8 @@ mod tests {
                     HitKind::Relief
                 },
             };
-            (hit, Vec3A::new(x as f32, y as f32, sub as f32))
+            let n = Vec3A::new(x as f32, y as f32, sub as f32 + 0.5);
+            (hit, Vec3A::new(x as f32, y as f32, sub as f32), n)
         })
     }
 
@@ -306,6 +350,32 @@ mod tests {
         for (x, y, sub) in [(0, 0, 0), (4, 2, 3), (2, 1, 1)] {
             assert_eq!(t.get(x, y, sub).t, (x * 1000 + y * 10 + sub) as f32);
         }
+        assert_eq!(t.normal(4, 2, 3), None, "no normals asked for");
+        let t = table_with(5, 3, 2, true);
+        for (x, y, sub) in [(0, 0, 0), (4, 2, 3), (2, 1, 1)] {
+            let n = Vec3A::new(x as f32, y as f32, sub as f32 + 0.5);
+            assert_eq!(t.normal(x, y, sub), Some(n));
+        }
+    }
+
+    /// A lamp view's table keeps its normals where they fit the budget, a laser view's none
+    /// (only the points by the sheet are shaded), and a table too large with normals is kept
+    /// without them.
+    #[test]
+    fn normals_are_kept_for_lamp_views_within_the_budget() {
+        let dims = (5, 3, 1);
+        let with_normals = table_bytes(5, 3, 1, true);
+        let hits = PrimaryHits::with_budget(8 * with_normals);
+        let build = |normals| table_with(5, 3, 1, normals);
+        hits.get("lamp".into(), dims, false, build);
+        let lamp = hits.get("lamp".into(), dims, false, build).expect("kept");
+        assert!(lamp.normal(0, 0, 0).is_some());
+        let laser = hits.get("laser".into(), dims, true, build).expect("kept");
+        assert!(laser.normal(0, 0, 0).is_none());
+        let tight = PrimaryHits::with_budget(8 * with_normals - 8);
+        tight.get("lamp".into(), dims, false, build);
+        let lamp = tight.get("lamp".into(), dims, false, build).expect("kept");
+        assert!(lamp.normal(0, 0, 0).is_none());
     }
 
     /// Each run of SPAN pixels bounds its own hits; a row that hit nothing is empty.
@@ -335,28 +405,28 @@ mod tests {
         let hits = PrimaryHits::default();
         let dims = (5, 3, 1);
         assert!(
-            hits.get("a".into(), dims, false, || table(5, 3, 1))
+            hits.get("a".into(), dims, false, |_| table(5, 3, 1))
                 .is_none()
         );
         assert!(
-            hits.get("b".into(), dims, false, || table(5, 3, 1))
+            hits.get("b".into(), dims, false, |_| table(5, 3, 1))
                 .is_none()
         );
         assert!(hits.is_empty());
         let a = hits
-            .get("a".into(), dims, false, || table(5, 3, 1))
+            .get("a".into(), dims, false, |_| table(5, 3, 1))
             .expect("second frame");
         let again = hits
-            .get("a".into(), dims, false, || panic!("built twice"))
+            .get("a".into(), dims, false, |_| panic!("built twice"))
             .expect("kept");
         assert!(Arc::ptr_eq(&a, &again));
         assert_eq!(hits.len(), 1);
         // A laser frame keeps its view's table at once.
         let c = hits
-            .get("c".into(), dims, true, || table(5, 3, 1))
+            .get("c".into(), dims, true, |_| table(5, 3, 1))
             .expect("first sight");
         let again = hits
-            .get("c".into(), dims, false, || panic!("built twice"))
+            .get("c".into(), dims, false, |_| panic!("built twice"))
             .expect("kept");
         assert!(Arc::ptr_eq(&c, &again));
         assert_eq!(hits.len(), 2);

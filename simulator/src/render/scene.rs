@@ -176,7 +176,7 @@ impl<'a> Scene<'a> {
 
     /// The first surface along the unit ray o + t·d, or `None` for black (void, or the tube).
     pub fn intersect(&self, o: Vec3A, d: Vec3A) -> Option<Hit> {
-        self.hit_from(o, d, self.locate(o, d))
+        self.hit_from(o, d, self.locate(o, d), None)
     }
 
     /// What the unit ray o + t·d meets first and how far along it: the part of
@@ -231,11 +231,22 @@ impl<'a> Scene<'a> {
     }
 
     /// The surface point `packed` found along the unit ray o + t·d, with its normal and
-    /// material: rebuilt the same way whether `packed` was located now or kept.
+    /// material: rebuilt the same way whether `packed` was located now or kept. `normal` is
+    /// the shading normal a [`HitTable`] kept for it, if any (the one computed here).
     #[inline]
-    pub fn hit_from(&self, o: Vec3A, d: Vec3A, packed: PackedHit) -> Option<Hit> {
+    pub fn hit_from(
+        &self,
+        o: Vec3A,
+        d: Vec3A,
+        packed: PackedHit,
+        normal: Option<Vec3A>,
+    ) -> Option<Hit> {
         let p = o + d * packed.t;
         let grid = self.sample.grid.as_ref();
+        let relief_normal = |g: &super::heightfield::HeightGrid| match normal {
+            Some(n) => n,
+            None => g.normal_at(p.x, p.y),
+        };
         let on_sample = |n: Vec3A, on_relief: bool| Hit {
             p,
             n,
@@ -245,14 +256,12 @@ impl<'a> Scene<'a> {
         let wall = |n: Vec3A| on_sample(n, false);
         Some(match packed.kind {
             HitKind::Nothing => return None,
-            HitKind::Relief => on_sample(grid?.normal_at(p.x, p.y), true),
+            HitKind::Relief => on_sample(relief_normal(grid?), true),
             HitKind::Wall(WallFacing::MinusX) => wall(Vec3A::new(-1.0, 0.0, 0.0)),
             HitKind::Wall(WallFacing::PlusX) => wall(Vec3A::new(1.0, 0.0, 0.0)),
             HitKind::Wall(WallFacing::MinusY) => wall(Vec3A::new(0.0, -1.0, 0.0)),
             HitKind::Wall(WallFacing::PlusY) => wall(Vec3A::new(0.0, 1.0, 0.0)),
-            HitKind::SamplePlane => {
-                on_sample(grid.map_or(Vec3A::Z, |g| g.normal_at(p.x, p.y)), false)
-            }
+            HitKind::SamplePlane => on_sample(grid.map_or(Vec3A::Z, relief_normal), false),
             HitKind::Turntable => Hit {
                 p,
                 n: Vec3A::Z,
@@ -550,7 +559,8 @@ impl<'a> Scene<'a> {
                     continue;
                 }
             }
-            let Some(h) = self.hit_from(pose.origin, d, packed) else {
+            let normal = hits.and_then(|table| table.normal(x, y, sub));
+            let Some(h) = self.hit_from(pose.origin, d, packed, normal) else {
                 continue;
             };
             let neighbours = || (ray(sub, 1, px + step, py), ray(sub, 2, px, py + step));
@@ -579,7 +589,8 @@ impl<'a> Scene<'a> {
     }
 
     /// The primary hit of sample `sub` of pixel (x, y) of `pose`, what a [`HitTable`] keeps,
-    /// and its point as [`Self::pixel_with`] rebuilds it from the kept distance.
+    /// and its point and shading normal (zero where nothing is hit) as [`Self::pixel_with`]
+    /// rebuilds them from the kept distance.
     pub fn locate_sample(
         &self,
         pose: &CameraPose,
@@ -587,7 +598,7 @@ impl<'a> Scene<'a> {
         x: u32,
         y: u32,
         sub: u32,
-    ) -> (PackedHit, Vec3A) {
+    ) -> (PackedHit, Vec3A, Vec3A) {
         let side = self.knobs.spp_side;
         let pixel = y as u64 * pose.width as u64 + x as u64;
         let lens = lens.filter(|t| t.covers(side, self.laser.is_some()));
@@ -600,14 +611,17 @@ impl<'a> Scene<'a> {
             sample_position(x, y, pose.width, sub, side),
         );
         let packed = self.locate(pose.origin, d);
-        let hit = match self.hit_from(pose.origin, d, packed) {
-            Some(h) => PackedHit {
-                cos_view: h.n.dot(-d).abs(),
-                ..packed
-            },
-            None => packed,
+        let (hit, n) = match self.hit_from(pose.origin, d, packed, None) {
+            Some(h) => (
+                PackedHit {
+                    cos_view: h.n.dot(-d).abs(),
+                    ..packed
+                },
+                h.n,
+            ),
+            None => (packed, Vec3A::ZERO),
         };
-        (hit, pose.origin + d * packed.t)
+        (hit, pose.origin + d * packed.t, n)
     }
 }
 

@@ -1,6 +1,8 @@
 //! The camera sensor: radiance to electrons, photon shot noise, full well, gain, a gently
 //! non-linear response, read noise, black level, saturation and quantisation to the bit depth.
 
+use glam::Vec3A;
+
 use super::rng::{GAUSS_BITS, gaussian, hash3, mix64};
 
 /// Electrons a pixel holds before it clips.
@@ -62,6 +64,21 @@ impl Response {
         match self {
             Response::Gentle(k) => x * (1.0 - k[c] + k[c] * x),
             Response::Gamma(g) => x.max(0.0).powf(1.0 / g[c]),
+        }
+    }
+
+    /// [`Self::apply`] on the three channels at once: the same arithmetic lane by lane, so
+    /// the same values bit for bit.
+    #[inline]
+    fn apply_rgb(&self, x: Vec3A) -> Vec3A {
+        match self {
+            Response::Gentle(k) => {
+                let k = Vec3A::from_array(*k);
+                x * ((Vec3A::ONE - k) + k * x)
+            }
+            Response::Gamma(_) => {
+                Vec3A::new(self.apply(0, x.x), self.apply(1, x.y), self.apply(2, x.z))
+            }
         }
     }
 
@@ -202,16 +219,15 @@ impl Sensor {
             }
             return out;
         }
-        for (c, (o, &r)) in out.iter_mut().zip(radiance.iter()).enumerate() {
-            let shift = GAUSS_BITS * c as u32;
-            *o = self.digitise_with(
-                c,
-                r,
-                gaussian(shot_bits >> shift) as f32,
-                gaussian(read_bits >> shift) as f32,
-            );
-        }
-        out
+        let draws = |bits: u64| {
+            let draw = |c: u32| gaussian(bits >> (GAUSS_BITS * c)) as f32;
+            Vec3A::new(draw(0), draw(1), draw(2))
+        };
+        self.digitise_lit(
+            Vec3A::from_array(radiance),
+            draws(shot_bits),
+            draws(read_bits),
+        )
     }
 
     /// Every digital number a pixel without light can read, per channel and read-noise draw,
@@ -252,13 +268,36 @@ impl Sensor {
         self.digitise_rgb(rgb, pixel)[(channel % 3) as usize]
     }
 
-    /// Channel `c` from its mean radiance and two standard normal deviates.
+    /// The three channels from their mean radiance and two standard normal deviates each
+    /// (shot and read noise), computed on all three lanes at once.
     #[inline]
+    fn digitise_lit(&self, radiance: Vec3A, shot: Vec3A, read: Vec3A) -> [u16; 3] {
+        // NaN electrons become 0 (`max` takes its second operand then); ∞ becomes the cap.
+        let e = (radiance * self.electrons_per_radiance)
+            .max(Vec3A::ZERO)
+            .min(Vec3A::splat(MAX_MEAN_ELECTRONS));
+        let e = (e + shot * e.sqrt())
+            .max(Vec3A::ZERO)
+            .min(Vec3A::splat(FULL_WELL_E as f32));
+        // Gain can take x past 1; the response then extrapolates and the DN clips below.
+        let x = e * self.fraction_per_electron;
+        let y = Vec3A::select(
+            x.cmple(Vec3A::ONE),
+            self.response.apply_rgb(x),
+            Vec3A::ONE + (x - Vec3A::ONE),
+        );
+        let dn = y * self.max_dn + Vec3A::splat(self.black) + read * self.read_sigma_dn;
+        // Round half up without a libm call: the clamped value is non-negative.
+        let dn = dn.max(Vec3A::ZERO).min(Vec3A::splat(self.max_dn)) + Vec3A::splat(0.5);
+        [dn.x as u16, dn.y as u16, dn.z as u16]
+    }
+
+    /// Channel `c` from its mean radiance and two standard normal deviates, one channel at
+    /// a time: the arithmetic [`Self::digitise_lit`] must reproduce (tests).
+    #[cfg(test)]
     fn digitise_with(&self, c: usize, radiance: f32, shot: f32, read: f32) -> u16 {
-        // `electrons` is never NaN (its `max` maps NaN to 0); ∞ becomes the cap.
         let e = self.electrons(radiance).min(MAX_MEAN_ELECTRONS);
         let e = (e + shot * e.sqrt()).clamp(0.0, FULL_WELL_E as f32);
-        // Gain can take x past 1; the response then extrapolates and the DN clips below.
         let x = e * self.fraction_per_electron;
         let y = if x <= 1.0 {
             self.response.apply(c, x)
@@ -282,20 +321,74 @@ impl Sensor {
 mod tests {
     use super::*;
 
+    /// Sensors of several bit depths, exposures, gains and responses, up to the extremes.
+    fn sensors() -> [Sensor; 5] {
+        [
+            Sensor::new(12, 0.02, 1.0, 1),
+            Sensor::new(16, 0.01, 4.0, 9),
+            Sensor::new(8, 0.03, 0.5, 3).with_response(Response::Gamma([2.2, 2.0, 1.8])),
+            Sensor::new(12, 10.0, 16.0, 5).with_response(Response::Gentle([0.0, 0.03, 0.5])),
+            Sensor::new(10, 1.0e30, 1.0e6, 7),
+        ]
+    }
+
     /// The dark levels give every pixel, lit or not, the numbers the arithmetic gives, at
     /// several bit depths, gains and responses.
     #[test]
     fn dark_levels_read_as_the_arithmetic_does() {
-        let sensors = [
-            Sensor::new(12, 0.02, 1.0, 1),
-            Sensor::new(16, 0.01, 4.0, 9),
-            Sensor::new(8, 0.03, 0.5, 3).with_response(Response::Gamma([2.2, 2.0, 1.8])),
-        ];
-        for s in sensors {
+        for s in sensors() {
             let dark = s.dark_levels();
             for p in 0..20_000u64 {
                 for rgb in [[0.0; 3], [0.1, 0.0, 0.0], [0.3, 0.2, 0.1]] {
                     assert_eq!(s.digitise_rgb_with(&dark, rgb, p), s.digitise_rgb(rgb, p));
+                }
+            }
+        }
+    }
+
+    /// The three lanes at once give what one channel at a time gives, bit for bit: dark,
+    /// dim, saturating, past full well at high gain, negative, NaN and infinite radiance,
+    /// every response, bit depth and gain, over every noise draw.
+    #[test]
+    fn the_lanes_digitise_as_one_channel_at_a_time() {
+        let radiances = [
+            0.0,
+            -0.0,
+            1.0e-9,
+            1.0e-3,
+            0.05,
+            std::f32::consts::FRAC_1_PI,
+            0.9,
+            3.0,
+            1.0e6,
+            -0.2,
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+        ];
+        for s in sensors() {
+            for (i, &r0) in radiances.iter().enumerate() {
+                let rgb = [
+                    r0,
+                    radiances[(i + 3) % radiances.len()],
+                    radiances[(i + 7) % 13],
+                ];
+                for k in 0..(1u64 << GAUSS_BITS) {
+                    let (shot_bits, read_bits) = (
+                        k | k << 12 | k << 24,
+                        (k ^ 0xabc) | k << 12 | (k ^ 0x555) << 24,
+                    );
+                    let draw =
+                        |bits: u64, c: usize| gaussian(bits >> (GAUSS_BITS * c as u32)) as f32;
+                    let lanes = s.digitise_lit(
+                        Vec3A::from_array(rgb),
+                        Vec3A::new(draw(shot_bits, 0), draw(shot_bits, 1), draw(shot_bits, 2)),
+                        Vec3A::new(draw(read_bits, 0), draw(read_bits, 1), draw(read_bits, 2)),
+                    );
+                    let one_by_one = [0, 1, 2].map(|c| {
+                        s.digitise_with(c, rgb[c], draw(shot_bits, c), draw(read_bits, c))
+                    });
+                    assert_eq!(lanes, one_by_one, "{s:?}, radiance {rgb:?}, draw {k}");
                 }
             }
         }
