@@ -408,6 +408,7 @@ impl<'a> Scene<'a> {
     }
 
     /// Radiance leaving `h` toward `wo` for sub-pixel sample `sub` of pixel `pixel`.
+    #[inline(always)]
     pub fn shade(
         &self,
         h: &Hit,
@@ -508,6 +509,7 @@ impl<'a> Scene<'a> {
     /// table, `pixel_samples::LensTables`) when it covers this scene's sampling, and each
     /// sample's primary hit from `hits` (the view's table, `primary_hits::PrimaryHits`) when
     /// given: the same radiance, bit for bit, without the lens inversion or the march.
+    #[inline(always)]
     pub fn pixel_with(
         &self,
         pose: &CameraPose,
