@@ -242,32 +242,37 @@ impl<'a> Scene<'a> {
         normal: Option<Vec3A>,
     ) -> Option<Hit> {
         let p = o + d * packed.t;
+        let n = self.normal_of(packed.kind, p, normal)?;
+        let (material, on_relief) = match packed.kind {
+            HitKind::Turntable => (TURNTABLE, false),
+            kind => (self.sample.material_at(p.x, p.y), kind == HitKind::Relief),
+        };
+        Some(Hit {
+            p,
+            n,
+            material,
+            on_relief,
+        })
+    }
+
+    /// The shading normal at point `p` of a hit of `kind` (`kept` when a [`HitTable`] kept
+    /// it); `None` where nothing is hit.
+    #[inline]
+    fn normal_of(&self, kind: HitKind, p: Vec3A, kept: Option<Vec3A>) -> Option<Vec3A> {
         let grid = self.sample.grid.as_ref();
-        let relief_normal = |g: &super::heightfield::HeightGrid| match normal {
+        let relief = |g: &super::heightfield::HeightGrid| match kept {
             Some(n) => n,
             None => g.normal_at(p.x, p.y),
         };
-        let on_sample = |n: Vec3A, on_relief: bool| Hit {
-            p,
-            n,
-            material: self.sample.material_at(p.x, p.y),
-            on_relief,
-        };
-        let wall = |n: Vec3A| on_sample(n, false);
-        Some(match packed.kind {
+        Some(match kind {
             HitKind::Nothing => return None,
-            HitKind::Relief => on_sample(relief_normal(grid?), true),
-            HitKind::Wall(WallFacing::MinusX) => wall(Vec3A::new(-1.0, 0.0, 0.0)),
-            HitKind::Wall(WallFacing::PlusX) => wall(Vec3A::new(1.0, 0.0, 0.0)),
-            HitKind::Wall(WallFacing::MinusY) => wall(Vec3A::new(0.0, -1.0, 0.0)),
-            HitKind::Wall(WallFacing::PlusY) => wall(Vec3A::new(0.0, 1.0, 0.0)),
-            HitKind::SamplePlane => on_sample(grid.map_or(Vec3A::Z, relief_normal), false),
-            HitKind::Turntable => Hit {
-                p,
-                n: Vec3A::Z,
-                material: TURNTABLE,
-                on_relief: false,
-            },
+            HitKind::Relief => relief(grid?),
+            HitKind::Wall(WallFacing::MinusX) => Vec3A::new(-1.0, 0.0, 0.0),
+            HitKind::Wall(WallFacing::PlusX) => Vec3A::new(1.0, 0.0, 0.0),
+            HitKind::Wall(WallFacing::MinusY) => Vec3A::new(0.0, -1.0, 0.0),
+            HitKind::Wall(WallFacing::PlusY) => Vec3A::new(0.0, 1.0, 0.0),
+            HitKind::SamplePlane => grid.map_or(Vec3A::Z, relief),
+            HitKind::Turntable => Vec3A::Z,
         })
     }
 
@@ -613,17 +618,14 @@ impl<'a> Scene<'a> {
             sample_position(x, y, pose.width, sub, side),
         );
         let packed = self.locate(pose.origin, d);
-        let (hit, n) = match self.hit_from(pose.origin, d, packed, None) {
-            Some(h) => (
-                PackedHit {
-                    cos_view: h.n.dot(-d).abs(),
-                    ..packed
-                },
-                h.n,
-            ),
-            None => (packed, Vec3A::ZERO),
-        };
-        (hit, pose.origin + d * packed.t, n)
+        let p = pose.origin + d * packed.t;
+        match self.normal_of(packed.kind, p, None) {
+            Some(n) => {
+                let cos_view = n.dot(-d).abs();
+                (PackedHit { cos_view, ..packed }, p, n)
+            }
+            None => (packed, p, Vec3A::ZERO),
+        }
     }
 }
 
