@@ -73,6 +73,20 @@ impl<K: PartialEq, T> Kept<K, T> {
         }
     }
 
+    /// The table for `key` if one is held (made the most recently used), waiting for it
+    /// while it is being built; `None` otherwise, or if its build failed.
+    pub fn peek(&self, key: &K) -> Option<Arc<T>> {
+        let slot = {
+            let mut slots = self.lock();
+            let i = slots.iter().position(|(k, _, _)| k == key)?;
+            let entry = slots.remove(i)?;
+            let slot = Arc::clone(&entry.2);
+            slots.push_back(entry);
+            slot
+        };
+        lock_slot(&slot).clone()
+    }
+
     /// Whether a table of `bytes` is kept: not above an eighth of the budget.
     pub fn keeps(&self, bytes: usize) -> bool {
         bytes <= self.budget_bytes / 8
@@ -106,6 +120,23 @@ impl<K: PartialEq, T> Kept<K, T> {
         self.lock().iter().any(|(k, _, _)| k == key)
     }
 
+    /// Every key held and its table (`None` while being built), oldest first (tests).
+    #[cfg(test)]
+    pub fn held(&self) -> Vec<(K, Option<Arc<T>>)>
+    where
+        K: Clone,
+    {
+        let slots: Vec<_> = self
+            .lock()
+            .iter()
+            .map(|(k, _, s)| (k.clone(), Arc::clone(s)))
+            .collect();
+        slots
+            .into_iter()
+            .map(|(k, s)| (k, lock_slot(&s).clone()))
+            .collect()
+    }
+
     /// Tables held now.
     pub fn len(&self) -> usize {
         self.lock().len()
@@ -133,8 +164,12 @@ mod tests {
             kept.get(k, 100, || k);
         }
         assert_eq!(kept.len(), 10);
+        assert!(kept.peek(&0).is_none(), "the first was dropped");
+        assert_eq!(kept.peek(&1).as_deref(), Some(&1));
         let fresh = kept.get(0, 100, || 8).expect("kept");
         assert_eq!(*fresh, 8, "the first was dropped and made again");
+        // Peeking at 1 made it the most recent: 2 went instead.
+        assert!(kept.peek(&1).is_some() && kept.peek(&2).is_none());
         assert!(kept.get(99, 200, || 0).is_none());
         assert_eq!(kept.len(), 10);
     }

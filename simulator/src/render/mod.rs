@@ -429,19 +429,24 @@ impl Renderer {
             once.spp_side = 1;
             let first = scene.with_knobs(&once);
             let lens1 = self.lens_tables.get(&pose, 1, laser_on);
-            let hits1 =
-                self.primary_hits(&first, &sample, &pose, lens1.as_deref(), tubes_key, &once);
+            let hits1 = self.primary_hits(
+                &first,
+                &pose,
+                lens1.as_deref(),
+                hits_key(&sample, &pose, 1, &tubes_key),
+                &once,
+            );
             let (base, base_rays) = render_rows(
                 &pose,
                 |x, y, rays| {
-                    first.pixel_with(&pose, lens1.as_deref(), hits1.as_deref(), x, y, rays)
+                    first.pixel_with(&pose, lens1.as_deref(), hits1.as_deref(), None, x, y, rays)
                 },
                 |_, _| true,
             );
             let refine = contrast_mask(&base, cam.width, cam.height, knobs.adaptive_threshold);
             let (fine, fine_rays) = render_rows(
                 &pose,
-                |x, y, rays| scene.pixel_with(&pose, None, None, x, y, rays),
+                |x, y, rays| scene.pixel_with(&pose, None, None, None, x, y, rays),
                 |x, y| refine[y as usize * cam.width as usize + x as usize],
             );
             let rgb = base
@@ -459,28 +464,52 @@ impl Renderer {
             let count = refine.iter().filter(|&&r| r).count();
             (rgb, base_rays + fine_rays, Some(count))
         } else {
-            let hits = if lit {
-                self.primary_hits(&scene, &sample, &pose, lens.as_deref(), tubes_key, knobs)
-            } else {
-                None
+            let key = hits_key(&sample, &pose, knobs.spp_side, &tubes_key);
+            let dims = (pose.width, pose.height, knobs.spp_side);
+            // A frame lit by the laser alone builds its view's table before shading, to skip
+            // what the sheet cannot reach; a lamp frame uses its view's kept table, or
+            // records one as it shades.
+            let laser_alone = scene.lit_by_laser_alone();
+            let hits = match (lit, laser_alone) {
+                (false, _) => None,
+                (true, true) => {
+                    self.primary_hits(&scene, &pose, lens.as_deref(), key.clone(), knobs)
+                }
+                (true, false) => self.primary_hits.kept(&key),
             };
-            // A laser frame skips the runs of pixels the sheet cannot reach.
-            let dark = hits.as_deref().and_then(|h| {
-                let spans = scene.dark_spans(&pose, h)?;
-                let skipped = spans.iter().filter(|&&d| d).count() as u64;
-                self.dark_spans_skipped
-                    .fetch_add(skipped, Ordering::Relaxed);
-                Some((spans, h.spans_per_row()))
-            });
-            let (rgb, rays) = render_rows(
-                &pose,
-                |x, y, rays| scene.pixel_with(&pose, lens.as_deref(), hits.as_deref(), x, y, rays),
-                |x, y| {
-                    lit && !dark
-                        .as_ref()
-                        .is_some_and(|(d, per_row)| dark_spans::in_dark_span(d, *per_row, x, y))
-                },
-            );
+            let record = match (lit && !laser_alone, &hits) {
+                (true, None) => self.primary_hits.keeps(dims, true),
+                _ => None,
+            };
+            let (rgb, rays) = if let Some(normals) = record {
+                let mut table =
+                    primary_hits::HitTable::empty(pose.width, pose.height, knobs.spp_side, normals);
+                let traced = render_rows_recording(&pose, &mut table, |x, y, rays, row| {
+                    scene.pixel_with(&pose, lens.as_deref(), None, Some(row), x, y, rays)
+                });
+                self.primary_hits.keep(key, table);
+                traced
+            } else {
+                // A laser frame skips the runs of pixels the sheet cannot reach.
+                let dark = hits.as_deref().and_then(|h| {
+                    let spans = scene.dark_spans(&pose, h)?;
+                    let skipped = spans.iter().filter(|&&d| d).count() as u64;
+                    self.dark_spans_skipped
+                        .fetch_add(skipped, Ordering::Relaxed);
+                    Some((spans, h.spans_per_row()))
+                });
+                render_rows(
+                    &pose,
+                    |x, y, rays| {
+                        scene.pixel_with(&pose, lens.as_deref(), hits.as_deref(), None, x, y, rays)
+                    },
+                    |x, y| {
+                        lit && !dark
+                            .as_ref()
+                            .is_some_and(|(d, per_row)| dark_spans::in_dark_span(d, *per_row, x, y))
+                    },
+                )
+            };
             (rgb, rays, None)
         };
         let notes = self.notes(&NoteInputs {
@@ -505,26 +534,22 @@ impl Renderer {
         })
     }
 
-    /// The primary hits of `pose`'s samples, kept while the view stays (`None` when too large
-    /// to keep). The key describes every input of the intersection exactly: the sample and
-    /// its relief, the pose (the turntable angle and fixture pose are in it), the sampling
-    /// and the tube's body.
+    /// The primary hits of `pose`'s samples for the view `key` ([`hits_key`]), built now
+    /// unless kept (with normals for a frame not lit by the laser alone, where they fit);
+    /// `None` when too large to keep.
     fn primary_hits(
         &self,
         scene: &Scene<'_>,
-        sample: &Sample,
         pose: &geometry::CameraPose,
         lens: Option<&pixel_samples::LensTable>,
-        tubes: String,
+        key: String,
         knobs: &Knobs,
     ) -> Option<Arc<primary_hits::HitTable>> {
         let side = knobs.spp_side;
-        let key = format!("{}|{pose:?}|{side}|{tubes}", relief_key(sample));
-        let at_first_sight = scene.lit_by_laser_alone();
         self.primary_hits.get(
             key,
             (pose.width, pose.height, side),
-            at_first_sight,
+            !scene.lit_by_laser_alone(),
             |normals| {
                 primary_hits::HitTable::build(
                     pose.width,
@@ -612,6 +637,31 @@ struct NoteInputs<'a> {
     refined: Option<usize>,
 }
 
+/// [`render_rows`] for a frame that shades every pixel, recording its view's primary hits
+/// into `table` row by row as it goes (`pixel` gets the row's recorder).
+fn render_rows_recording(
+    pose: &geometry::CameraPose,
+    table: &mut primary_hits::HitTable,
+    pixel: impl Fn(u32, u32, &mut u64, &mut primary_hits::RowRecorder<'_>) -> glam::Vec3A + Sync,
+) -> (Vec<f32>, u64) {
+    let width = pose.width as usize;
+    let mut rgb = vec![0f32; width * pose.height as usize * 3];
+    let rays = rgb
+        .par_chunks_mut(width * 3)
+        .zip(table.rows(pose.origin))
+        .enumerate()
+        .map(|(y, (row, mut record))| {
+            let mut rays = 0u64;
+            for (x, out) in row.chunks_exact_mut(3).enumerate() {
+                let radiance = pixel(x as u32, y as u32, &mut rays, &mut record);
+                out.copy_from_slice(&radiance.to_array());
+            }
+            rays
+        })
+        .sum();
+    (rgb, rays)
+}
+
 /// Renders the pixels of `pose` where `want(x, y)` with `pixel` (rows in parallel; the others
 /// stay black): the RGB image and the shadow rays marched.
 fn render_rows(
@@ -661,6 +711,13 @@ fn contrast_mask(rgb: &[f32], width: u32, height: u32, threshold: f32) -> Vec<bo
         }
     }
     mask
+}
+
+/// The key of the primary hits of `pose`'s samples: every input of the intersection exactly,
+/// the sample and its relief, the pose (the turntable angle and fixture pose are in it), the
+/// samples per pixel side and the tube's body (`tubes`).
+fn hits_key(sample: &Sample, pose: &geometry::CameraPose, side: u32, tubes: &str) -> String {
+    format!("{}|{pose:?}|{side}|{tubes}", relief_key(sample))
 }
 
 /// Cache key of a sample's relief statistics.

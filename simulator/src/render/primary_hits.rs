@@ -4,18 +4,18 @@
 //! sub-pixel sample, the distance to the hit, what was hit and the cosine of the view there
 //! (which bounds where the laser can light it), keyed on everything the
 //! intersection depends on (sample, relief, camera pose with the turntable angle and fixture
-//! pose, sampling, the tube's body), kept once a view is asked for a second time, or at once
-//! for a frame lit by the laser alone (a sweep follows). The shading
-//! point is rebuilt from the kept distance by
-//! the same code as an uncached frame, so frames are bit-identical with or without the table.
+//! pose, sampling, the tube's body). A lamp frame records its view's table as it shades (the
+//! march it does anyway, so a view seen once costs only the stores); a frame lit by the laser
+//! alone builds it before shading, to skip what the sheet cannot reach from its first frame
+//! on. The shading point is rebuilt from the kept distance by the same code as an uncached
+//! frame, so frames are bit-identical with or without the table.
 //! Each run of [`SPAN`] pixels along a row also keeps the bounds of its hit points
 //! ([`SpanBounds`]), so a laser frame can skip the runs the sheet cannot reach
 //! (`dark_spans.rs`). A lamp frame's table also keeps each sample's shading normal where
 //! it fits the budget (the preview preset): every point of a lamp frame is shaded, and
 //! interpolating the relief's normal is a tenth of its cost.
 
-use std::collections::VecDeque;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use glam::Vec3A;
 use rayon::prelude::*;
@@ -136,7 +136,70 @@ pub struct HitTable {
     spans: Vec<SpanBounds>,
 }
 
+/// One row of a [`HitTable`] being filled (see [`HitTable::rows`]).
+pub struct RowRecorder<'t> {
+    per_pixel: usize,
+    eye: Vec3A,
+    hits: &'t mut [PackedHit],
+    /// Empty when the table keeps no normals.
+    normals: &'t mut [[f32; 3]],
+    spans: &'t mut [SpanBounds],
+}
+
+impl RowRecorder<'_> {
+    /// Records sample `sub` of pixel `x` of this row: its hit, the hit's point `p` and its
+    /// shading normal `n` (zero where nothing is hit).
+    #[inline]
+    pub fn record(&mut self, x: u32, sub: u32, hit: PackedHit, p: Vec3A, n: Vec3A) {
+        self.spans[(x / SPAN) as usize].include(&hit, p, self.eye);
+        let i = x as usize * self.per_pixel + sub as usize;
+        self.hits[i] = hit;
+        if let Some(slot) = self.normals.get_mut(i) {
+            *slot = n.to_array();
+        }
+    }
+}
+
 impl HitTable {
+    /// A table for a `width` × `height` camera sampled `side` × `side` where nothing is hit
+    /// yet, keeping normals when `normals` is true: filled row by row ([`Self::rows`]).
+    pub fn empty(width: u32, height: u32, side: u32, normals: bool) -> HitTable {
+        let samples = width as usize * height as usize * (side * side) as usize;
+        HitTable {
+            side,
+            width,
+            hits: vec![PackedHit::NOTHING; samples],
+            normals: vec![[0.0; 3]; if normals { samples } else { 0 }],
+            spans: vec![SpanBounds::EMPTY; spans_per_row(width) * height as usize],
+        }
+    }
+
+    /// The table's rows, top first, for filling in parallel with the hits of samples seen
+    /// from `eye`.
+    pub fn rows(&mut self, eye: Vec3A) -> impl IndexedParallelIterator<Item = RowRecorder<'_>> {
+        let per_pixel = (self.side * self.side) as usize;
+        let row = (self.width as usize * per_pixel).max(1);
+        let height = self.hits.len() / row;
+        // Without normals each row gets an empty slice to write none into.
+        let normal_rows: Vec<&mut [[f32; 3]]> = if self.normals.is_empty() {
+            (0..height).map(|_| <&mut [[f32; 3]]>::default()).collect()
+        } else {
+            self.normals.chunks_mut(row).collect()
+        };
+        let spans_per_row = spans_per_row(self.width).max(1);
+        self.hits
+            .par_chunks_mut(row)
+            .zip(self.spans.par_chunks_mut(spans_per_row))
+            .zip(normal_rows)
+            .map(move |((hits, spans), normals)| RowRecorder {
+                per_pixel,
+                eye,
+                hits,
+                normals,
+                spans,
+            })
+    }
+
     /// Computes the table for a `width` × `height` camera at `eye` sampled `side` × `side`,
     /// rows in parallel; `locate(x, y, sub)` is the primary hit of sample `sub` of pixel
     /// (x, y), its point and its shading normal, computed as the renderer rebuilds them from
@@ -149,43 +212,16 @@ impl HitTable {
         normals: bool,
         locate: impl Fn(u32, u32, u32) -> (PackedHit, Vec3A, Vec3A) + Sync,
     ) -> HitTable {
-        let per_pixel = (side * side) as usize;
-        let row = width as usize * per_pixel;
-        let spans_per_row = spans_per_row(width);
-        let mut hits = vec![PackedHit::NOTHING; row * height as usize];
-        let mut spans = vec![SpanBounds::EMPTY; spans_per_row * height as usize];
-        let mut kept_normals = vec![[0.0f32; 3]; if normals { hits.len() } else { 0 }];
-        // Without normals each row gets an empty slice to write none into.
-        let normal_rows: Vec<&mut [[f32; 3]]> = if normals {
-            kept_normals.chunks_mut(row.max(1)).collect()
-        } else {
-            (0..height).map(|_| <&mut [[f32; 3]]>::default()).collect()
-        };
-        hits.par_chunks_mut(row.max(1))
-            .zip(spans.par_chunks_mut(spans_per_row.max(1)))
-            .zip(normal_rows)
-            .enumerate()
-            .for_each(|(y, ((out, bounds), normals_out))| {
-                for x in 0..width {
-                    let span = &mut bounds[(x / SPAN) as usize];
-                    for sub in 0..side * side {
-                        let (hit, p, n) = locate(x, y as u32, sub);
-                        span.include(&hit, p, eye);
-                        let i = x as usize * per_pixel + sub as usize;
-                        out[i] = hit;
-                        if let Some(slot) = normals_out.get_mut(i) {
-                            *slot = n.to_array();
-                        }
-                    }
+        let mut table = HitTable::empty(width, height, side, normals);
+        table.rows(eye).enumerate().for_each(|(y, mut row)| {
+            for x in 0..width {
+                for sub in 0..side * side {
+                    let (hit, p, n) = locate(x, y as u32, sub);
+                    row.record(x, sub, hit, p, n);
                 }
-            });
-        HitTable {
-            side,
-            width,
-            hits,
-            normals: kept_normals,
-            spans,
-        }
+            }
+        });
+        table
     }
 
     /// The bounds of every run of [`SPAN`] pixels, row-major ([`Self::spans_per_row`] a row).
@@ -218,6 +254,12 @@ impl HitTable {
     pub fn side(&self) -> u32 {
         self.side
     }
+
+    /// Whether `self` and `other` hold the same hits and bounds (normals aside).
+    #[cfg(test)]
+    pub fn same_hits(&self, other: &HitTable) -> bool {
+        self.hits == other.hits && self.spans == other.spans && self.side == other.side
+    }
 }
 
 /// Runs of [`SPAN`] pixels in a row `width` pixels wide.
@@ -243,17 +285,10 @@ fn table_bytes(width: u32, height: u32, side: u32, normals: bool) -> usize {
         )
 }
 
-/// Views remembered as seen once: a lamp frame's table is kept only for a view asked for
-/// again, so lamp frames that each see a new view (a turntable turning every step) keep
-/// nothing.
-const SEEN_VIEWS: usize = 64;
-
 /// The hit tables of one renderer's camera views, keyed on an exact description of each view.
 #[derive(Debug)]
 pub struct PrimaryHits {
     tables: Kept<String, HitTable>,
-    /// Views asked for once and not (yet) kept, most recent last.
-    seen: Mutex<VecDeque<String>>,
 }
 
 impl Default for PrimaryHits {
@@ -267,44 +302,55 @@ impl PrimaryHits {
     pub fn with_budget(budget_bytes: usize) -> PrimaryHits {
         PrimaryHits {
             tables: Kept::with_budget(budget_bytes),
-            seen: Mutex::new(VecDeque::new()),
         }
     }
 
+    /// Whether a table of `width` × `height` pixels sampled `side` × `side` is kept
+    /// (`None`: too large, the caller intersects per frame), and whether with normals: when
+    /// `normals` are wanted and the table still fits with them.
+    pub fn keeps(&self, (width, height, side): (u32, u32, u32), normals: bool) -> Option<bool> {
+        let with_normals = normals && self.tables.keeps(table_bytes(width, height, side, true));
+        self.tables
+            .keeps(table_bytes(width, height, side, with_normals))
+            .then_some(with_normals)
+    }
+
     /// The table for the view described exactly by `key`, `width` × `height` pixels sampled
-    /// `side` × `side`, built by `build` when the view is asked for the second time, or the
-    /// first when `at_first_sight` (a frame lit by the laser alone: a sweep follows, and the
-    /// table spares its first frame the shading beyond the sheet); `None` otherwise, or when
-    /// too large to keep (the caller intersects per frame). `build(normals)` keeps the
-    /// normals too when asked: for a view first kept by a lamp frame, where they fit.
+    /// `side` × `side`, built now by `build(normals)` unless kept (normals as
+    /// [`Self::keeps`] decides); `None` when too large to keep.
     pub fn get(
         &self,
         key: String,
         (width, height, side): (u32, u32, u32),
-        at_first_sight: bool,
+        normals: bool,
         build: impl FnOnce(bool) -> HitTable,
     ) -> Option<Arc<HitTable>> {
-        let normals = !at_first_sight && self.tables.keeps(table_bytes(width, height, side, true));
+        let normals = self.keeps((width, height, side), normals)?;
         let bytes = table_bytes(width, height, side, normals);
-        if !at_first_sight && !self.tables.contains(&key) {
-            let mut seen = self
-                .seen
-                .lock()
-                .unwrap_or_else(|poisoned| poisoned.into_inner());
-            match seen.iter().position(|k| *k == key) {
-                Some(i) => {
-                    seen.remove(i);
-                }
-                None => {
-                    seen.push_back(key);
-                    if seen.len() > SEEN_VIEWS {
-                        seen.pop_front();
-                    }
-                    return None;
-                }
-            }
-        }
         self.tables.get(key, bytes, || build(normals))
+    }
+
+    /// The kept table for the view `key`, if any.
+    pub fn kept(&self, key: &String) -> Option<Arc<HitTable>> {
+        self.tables.peek(key)
+    }
+
+    /// Keeps `table`, recorded by a frame of the view `key` as it shaded (a table kept
+    /// meanwhile for the same view stays instead).
+    pub fn keep(&self, key: String, table: HitTable) {
+        let normals = !table.normals.is_empty();
+        let height =
+            table.hits.len() / (table.width as usize * (table.side * table.side) as usize).max(1);
+        let bytes = table_bytes(table.width, height as u32, table.side, normals);
+        self.tables.get(key, bytes, || table);
+    }
+
+    /// Every table held, by key (tests).
+    #[cfg(test)]
+    pub fn held(&self) -> Vec<(String, Arc<HitTable>)> {
+        let held = self.tables.held().into_iter();
+        held.filter_map(|(key, table)| Some((key, table?)))
+            .collect()
     }
 
     /// Tables held now.
@@ -328,19 +374,22 @@ mod tests {
 
     /// A test table, keeping the normals (x, y, sub) when `normals`.
     fn table_with(w: u32, h: u32, side: u32, normals: bool) -> HitTable {
-        HitTable::build(w, h, side, Vec3A::ZERO, normals, |x, y, sub| {
-            let hit = PackedHit {
-                t: (x * 1000 + y * 10 + sub) as f32,
-                cos_view: 1.0 / (1 + x) as f32,
-                kind: if y == 0 {
-                    HitKind::Nothing
-                } else {
-                    HitKind::Relief
-                },
-            };
-            let n = Vec3A::new(x as f32, y as f32, sub as f32 + 0.5);
-            (hit, Vec3A::new(x as f32, y as f32, sub as f32), n)
-        })
+        HitTable::build(w, h, side, Vec3A::ZERO, normals, located)
+    }
+
+    /// The test tables' hit of sample `sub` of pixel (x, y): nothing on row 0.
+    fn located(x: u32, y: u32, sub: u32) -> (PackedHit, Vec3A, Vec3A) {
+        let hit = PackedHit {
+            t: (x * 1000 + y * 10 + sub) as f32,
+            cos_view: 1.0 / (1 + x) as f32,
+            kind: if y == 0 {
+                HitKind::Nothing
+            } else {
+                HitKind::Relief
+            },
+        };
+        let n = Vec3A::new(x as f32, y as f32, sub as f32 + 0.5);
+        (hit, Vec3A::new(x as f32, y as f32, sub as f32), n)
     }
 
     #[test]
@@ -358,24 +407,49 @@ mod tests {
         }
     }
 
-    /// A lamp view's table keeps its normals where they fit the budget, a laser view's none
-    /// (only the points by the sheet are shaded), and a table too large with normals is kept
-    /// without them.
+    /// Normals are kept when wanted (a lamp view's table) and the table still fits with
+    /// them; a table too large with normals is kept without them; one too large even
+    /// without is not kept.
     #[test]
-    fn normals_are_kept_for_lamp_views_within_the_budget() {
+    fn normals_are_kept_when_wanted_and_within_the_budget() {
         let dims = (5, 3, 1);
         let with_normals = table_bytes(5, 3, 1, true);
         let hits = PrimaryHits::with_budget(8 * with_normals);
+        assert_eq!(hits.keeps(dims, true), Some(true));
+        assert_eq!(hits.keeps(dims, false), Some(false));
         let build = |normals| table_with(5, 3, 1, normals);
-        hits.get("lamp".into(), dims, false, build);
-        let lamp = hits.get("lamp".into(), dims, false, build).expect("kept");
+        let lamp = hits.get("lamp".into(), dims, true, build).expect("kept");
         assert!(lamp.normal(0, 0, 0).is_some());
-        let laser = hits.get("laser".into(), dims, true, build).expect("kept");
+        let laser = hits.get("laser".into(), dims, false, build).expect("kept");
         assert!(laser.normal(0, 0, 0).is_none());
         let tight = PrimaryHits::with_budget(8 * with_normals - 8);
-        tight.get("lamp".into(), dims, false, build);
-        let lamp = tight.get("lamp".into(), dims, false, build).expect("kept");
+        assert_eq!(tight.keeps(dims, true), Some(false));
+        let lamp = tight.get("lamp".into(), dims, true, build).expect("kept");
         assert!(lamp.normal(0, 0, 0).is_none());
+        let none = PrimaryHits::with_budget(8 * table_bytes(5, 3, 1, false) - 8);
+        assert_eq!(none.keeps(dims, false), None);
+        assert!(none.get("lamp".into(), dims, true, build).is_none());
+    }
+
+    /// A table recorded row by row holds what one built from the same hits holds.
+    #[test]
+    fn a_recorded_table_equals_a_built_one() {
+        let built = table_with(20, 3, 2, true);
+        let mut recorded = HitTable::empty(20, 3, 2, true);
+        recorded
+            .rows(Vec3A::ZERO)
+            .enumerate()
+            .for_each(|(y, mut row)| {
+                for x in (0..20).rev() {
+                    for sub in 0..4 {
+                        let (hit, p, n) = located(x, y as u32, sub);
+                        row.record(x, sub, hit, p, n);
+                    }
+                }
+            });
+        assert_eq!(recorded.hits, built.hits);
+        assert_eq!(recorded.normals, built.normals);
+        assert_eq!(recorded.spans, built.spans);
     }
 
     /// Each run of SPAN pixels bounds its own hits; a row that hit nothing is empty.
@@ -399,36 +473,25 @@ mod tests {
         assert!(a.relief && !a.is_empty());
     }
 
-    /// A view seen once keeps nothing; asked again, its table is built and kept.
+    /// A table is built once and shared; a table a frame recorded is found again and a
+    /// second recording of the same view does not replace it.
     #[test]
-    fn a_table_is_kept_from_a_views_second_frame() {
+    fn a_table_is_built_or_recorded_once_and_found_again() {
         let hits = PrimaryHits::default();
         let dims = (5, 3, 1);
-        assert!(
-            hits.get("a".into(), dims, false, |_| table(5, 3, 1))
-                .is_none()
-        );
-        assert!(
-            hits.get("b".into(), dims, false, |_| table(5, 3, 1))
-                .is_none()
-        );
-        assert!(hits.is_empty());
+        assert!(hits.kept(&"a".into()).is_none());
         let a = hits
             .get("a".into(), dims, false, |_| table(5, 3, 1))
-            .expect("second frame");
+            .expect("built");
         let again = hits
             .get("a".into(), dims, false, |_| panic!("built twice"))
             .expect("kept");
         assert!(Arc::ptr_eq(&a, &again));
-        assert_eq!(hits.len(), 1);
-        // A laser frame keeps its view's table at once.
-        let c = hits
-            .get("c".into(), dims, true, |_| table(5, 3, 1))
-            .expect("first sight");
-        let again = hits
-            .get("c".into(), dims, false, |_| panic!("built twice"))
-            .expect("kept");
-        assert!(Arc::ptr_eq(&c, &again));
+        assert!(Arc::ptr_eq(&a, &hits.kept(&"a".into()).expect("kept")));
+        hits.keep("b".into(), table(5, 3, 1));
+        let b = hits.kept(&"b".into()).expect("recorded");
+        hits.keep("b".into(), table(5, 3, 2));
+        assert!(Arc::ptr_eq(&b, &hits.kept(&"b".into()).expect("kept")));
         assert_eq!(hits.len(), 2);
     }
 }

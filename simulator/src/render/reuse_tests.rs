@@ -95,6 +95,33 @@ fn a_lamp_sequence_and_a_laser_sweep_at_one_view_are_bit_identical() {
     }
 }
 
+/// The table a lamp frame records as it shades holds the hits and bounds a laser frame's
+/// table, built before shading, holds for the same view, bit for bit, and the normals the
+/// renderer computes.
+#[test]
+fn a_lamp_frames_recorded_table_is_the_one_a_build_makes() {
+    let rig = rig(BUILTIN_LIGHTSTAGE, "bumps", 0.0);
+    let view = world("bumps", 30.0);
+    let recorder = Renderer::with_knobs(&rig, Quality::Preview.knobs()).expect("renderer");
+    let builder = Renderer::with_knobs(&rig, Quality::Preview.knobs()).expect("renderer");
+    for cam in &rig.cameras {
+        recorder
+            .render(&lamp(view.clone(), "lamp1"), &cam.id, 0.02, 1.0, 1)
+            .expect("render");
+        builder
+            .render(&laser(view.clone(), 2.0), &cam.id, 0.02, 1.0, 1)
+            .expect("render");
+    }
+    let recorded = recorder.primary_hits.held();
+    let built = builder.primary_hits.held();
+    assert_eq!(recorded.len(), rig.cameras.len(), "one table a camera");
+    for ((key, a), (other, b)) in recorded.iter().zip(&built) {
+        assert_eq!(key, other);
+        assert!(a.same_hits(b), "{key}");
+        assert!(a.normal(0, 0, 0).is_some() && b.normal(0, 0, 0).is_none());
+    }
+}
+
 /// The exposures of an HDR bracket share one trace: every frame is bit-identical to one
 /// traced on its own, and a world that differs in anything but the time is traced again.
 #[test]

@@ -11,7 +11,7 @@ use super::geometry::CameraPose;
 use super::laser::LaserSheet;
 use super::lights::{Emitter, HALOGEN_RADIUS_MM, Light, TURNTABLE_RADIUS_MM, TubeBody};
 use super::pixel_samples::{JITTER_KEY, LensTable, sample_position};
-use super::primary_hits::{HitKind, HitTable, PackedHit, WallFacing};
+use super::primary_hits::{HitKind, HitTable, PackedHit, RowRecorder, WallFacing};
 use super::quality::Knobs;
 use super::rng::{hash3, unit_f32};
 use super::sample::{Material, Sample};
@@ -507,19 +507,23 @@ impl<'a> Scene<'a> {
 
     /// Mean radiance over the pixel (x, y) of `pose`, in reference units.
     pub fn pixel(&self, pose: &CameraPose, x: u32, y: u32, rays: &mut u64) -> Vec3A {
-        self.pixel_with(pose, None, None, x, y, rays)
+        self.pixel_with(pose, None, None, None, x, y, rays)
     }
 
     /// [`Self::pixel`], reading the lens's undistorted sample points from `lens` (the camera's
     /// table, `pixel_samples::LensTables`) when it covers this scene's sampling, and each
     /// sample's primary hit from `hits` (the view's table, `primary_hits::PrimaryHits`) when
     /// given: the same radiance, bit for bit, without the lens inversion or the march.
+    /// Without `hits`, each sample's hit is recorded in `record` (the pixel's row of the
+    /// view's table being made) when given, as [`Self::locate_sample`] gives it.
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
     pub fn pixel_with(
         &self,
         pose: &CameraPose,
         lens: Option<&LensTable>,
         hits: Option<&HitTable>,
+        mut record: Option<&mut RowRecorder<'_>>,
         x: u32,
         y: u32,
         rays: &mut u64,
@@ -567,7 +571,17 @@ impl<'a> Scene<'a> {
                 }
             }
             let normal = hits.and_then(|table| table.normal(x, y, sub));
-            let Some(h) = self.hit_from(pose.origin, d, packed, normal) else {
+            let hit = self.hit_from(pose.origin, d, packed, normal);
+            if let Some(row) = record.as_mut() {
+                match &hit {
+                    Some(h) => {
+                        let cos_view = h.n.dot(-d).abs();
+                        row.record(x, sub, PackedHit { cos_view, ..packed }, h.p, h.n);
+                    }
+                    None => row.record(x, sub, packed, pose.origin + d * packed.t, Vec3A::ZERO),
+                }
+            }
+            let Some(h) = hit else {
                 continue;
             };
             let neighbours = || (ray(sub, 1, px + step, py), ray(sub, 2, px, py + step));

@@ -223,7 +223,7 @@ fn lens_table_pixels_are_the_computed_pixels() {
                 .to_array()
                 .map(f32::to_bits);
             let tabled = scene
-                .pixel_with(&pose, Some(&table), None, x, y, &mut b)
+                .pixel_with(&pose, Some(&table), None, None, x, y, &mut b)
                 .to_array()
                 .map(f32::to_bits);
             assert_eq!(tabled, computed, "({x}, {y})");
