@@ -82,7 +82,7 @@ pub mod verify;
 mod tests;
 
 pub use error::StorageError;
-pub use frame_memory::keep_frame_memory;
+pub use frame_memory::{keep_frame_memory, release_frame_memory};
 pub use frame_meta::{
     FrameKind, FrameMeta, FramePixels, FrameToWrite, frame_file_name, ground_truth_file_name,
 };

@@ -488,6 +488,8 @@ impl Reservation {
             }
             let outcome = outcome_of(&supervised, joined);
             finish(&app, &supervised, outcome);
+            // No frames are made until the next run: the memory kept for them goes back.
+            tokio::task::spawn_blocking(stagehand_dataset::release_frame_memory);
         });
         Ok(active)
     }
