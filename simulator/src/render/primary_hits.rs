@@ -234,20 +234,33 @@ impl HitTable {
         spans_per_row(self.width)
     }
 
+    /// Where sample `sub` of pixel (x, y) sits in the per-sample vectors.
+    #[inline]
+    fn index(&self, x: u32, y: u32, sub: u32) -> usize {
+        let per_pixel = (self.side * self.side) as usize;
+        (y as usize * self.width as usize + x as usize) * per_pixel + sub as usize
+    }
+
     /// The hit of sample `sub` of pixel (x, y).
     #[inline]
     pub fn get(&self, x: u32, y: u32, sub: u32) -> PackedHit {
-        let per_pixel = (self.side * self.side) as usize;
-        self.hits[(y as usize * self.width as usize + x as usize) * per_pixel + sub as usize]
+        self.hits[self.index(x, y, sub)]
     }
 
     /// The shading normal at the hit of sample `sub` of pixel (x, y), when the table keeps
     /// normals.
     #[inline]
     pub fn normal(&self, x: u32, y: u32, sub: u32) -> Option<Vec3A> {
-        let per_pixel = (self.side * self.side) as usize;
-        let i = (y as usize * self.width as usize + x as usize) * per_pixel + sub as usize;
-        self.normals.get(i).map(|&n| Vec3A::from_array(n))
+        self.normals
+            .get(self.index(x, y, sub))
+            .map(|&n| Vec3A::from_array(n))
+    }
+
+    /// Bytes this table holds: what [`table_bytes`] counts for its size.
+    fn bytes(&self) -> usize {
+        self.hits.len() * std::mem::size_of::<PackedHit>()
+            + self.normals.len() * std::mem::size_of::<[f32; 3]>()
+            + self.spans.len() * std::mem::size_of::<SpanBounds>()
     }
 
     /// Samples per pixel side this table holds.
@@ -338,11 +351,7 @@ impl PrimaryHits {
     /// Keeps `table`, recorded by a frame of the view `key` as it shaded (a table kept
     /// meanwhile for the same view stays instead).
     pub fn keep(&self, key: String, table: HitTable) {
-        let normals = !table.normals.is_empty();
-        let height =
-            table.hits.len() / (table.width as usize * (table.side * table.side) as usize).max(1);
-        let bytes = table_bytes(table.width, height as u32, table.side, normals);
-        self.tables.get(key, bytes, || table);
+        self.tables.get(key, table.bytes(), || table);
     }
 
     /// Every table held, by key (tests).
@@ -400,6 +409,11 @@ mod tests {
             assert_eq!(t.get(x, y, sub).t, (x * 1000 + y * 10 + sub) as f32);
         }
         assert_eq!(t.normal(4, 2, 3), None, "no normals asked for");
+        assert_eq!(t.bytes(), table_bytes(5, 3, 2, false));
+        assert_eq!(
+            table_with(5, 3, 2, true).bytes(),
+            table_bytes(5, 3, 2, true)
+        );
         let t = table_with(5, 3, 2, true);
         for (x, y, sub) in [(0, 0, 0), (4, 2, 3), (2, 1, 1)] {
             let n = Vec3A::new(x as f32, y as f32, sub as f32 + 0.5);

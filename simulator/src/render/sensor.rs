@@ -190,11 +190,6 @@ impl Sensor {
         self.black as f64
     }
 
-    /// Mean electrons collected from `radiance` (before noise and clipping).
-    pub fn electrons(&self, radiance: f32) -> f32 {
-        (radiance * self.electrons_per_radiance).max(0.0)
-    }
-
     /// The 64 bits pixel `pixel`'s shot noise is drawn from and the 64 its read noise is
     /// drawn from (12 a channel), the second a hash of the first. Changing either changes
     /// every frame's noise (and whether the calibration tests keep their marginal camera).
@@ -296,7 +291,9 @@ impl Sensor {
     /// a time: the arithmetic [`Self::digitise_lit`] must reproduce (tests).
     #[cfg(test)]
     fn digitise_with(&self, c: usize, radiance: f32, shot: f32, read: f32) -> u16 {
-        let e = self.electrons(radiance).min(MAX_MEAN_ELECTRONS);
+        // `max` maps NaN to 0 (`clamp` would keep it); ∞ becomes the cap.
+        let e = (radiance * self.electrons_per_radiance).max(0.0);
+        let e = e.min(MAX_MEAN_ELECTRONS);
         let e = (e + shot * e.sqrt()).clamp(0.0, FULL_WELL_E as f32);
         let x = e * self.fraction_per_electron;
         let y = if x <= 1.0 {
@@ -371,7 +368,7 @@ mod tests {
                 let rgb = [
                     r0,
                     radiances[(i + 3) % radiances.len()],
-                    radiances[(i + 7) % 13],
+                    radiances[(i + 7) % radiances.len()],
                 ];
                 for k in 0..(1u64 << GAUSS_BITS) {
                     let (shot_bits, read_bits) = (
