@@ -249,7 +249,7 @@ async fn run_actor<D: AxisDriver>(
 /// Homes, then waits the settling time.
 async fn home_and_settle<D: AxisDriver>(spec: &AxisSpec, driver: &mut D) -> DeviceResult<f64> {
     let p = driver.home().await?;
-    tokio::time::sleep(duration_s(spec.settle_s)).await;
+    crate::clock::sleep(duration_s(spec.settle_s)).await;
     Ok(p)
 }
 
@@ -268,7 +268,7 @@ async fn approach<D: AxisDriver>(
         driver.move_to(target - spec.backlash_deg).await?;
     }
     let p = driver.move_to(target).await?;
-    tokio::time::sleep(duration_s(spec.settle_s)).await;
+    crate::clock::sleep(duration_s(spec.settle_s)).await;
     Ok(p)
 }
 
