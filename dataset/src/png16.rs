@@ -167,7 +167,13 @@ fn encode(
     };
     let shift = shift.unwrap_or(0);
     let limit = u16::MAX >> shift;
-    if let Some(&v) = pixels.iter().find(|&&v| v > limit) {
+    // The largest sample first, in vector lanes (a search for the first sample above the
+    // limit runs one sample at a time: 6 % of the writer's CPU at full size); the search
+    // only to name the sample of a frame that fails.
+    let largest = pixels.iter().fold(0u16, |m, &v| m.max(v));
+    if largest > limit
+        && let Some(&v) = pixels.iter().find(|&&v| v > limit)
+    {
         return Err(StorageError::InvalidFrame {
             name: name.to_string(),
             reason: format!(

@@ -13,7 +13,7 @@ use stagehand_devices::{DeviceError, DeviceErrorKind};
 use tokio::sync::broadcast;
 
 use crate::render::config::FrameSource;
-use crate::sim_devices::test_pattern;
+use crate::sim_devices::TestPattern;
 use crate::world::{Pulse, World};
 use crate::world_snapshot::WorldSnapshot;
 
@@ -31,6 +31,8 @@ pub struct SimCamera {
     ground_truth: Option<(WorldSnapshot, Arc<GroundTruthData>)>,
     /// Rendering time, which the camera's frame timeouts do not count.
     compute: ComputeTime,
+    /// The test pattern's plate, drawn at the first frame of `sim.frames = "pattern"`.
+    pattern: Option<TestPattern>,
 }
 
 impl SimCamera {
@@ -44,6 +46,7 @@ impl SimCamera {
             expected: None,
             ground_truth: None,
             compute: ComputeTime::default(),
+            pattern: None,
         }
     }
 
@@ -175,14 +178,14 @@ impl CameraDriver for SimCamera {
         let compute = self.compute.clone();
         let (pixels, notes, ground_truth) = if self.world.sim().frames == FrameSource::Pattern {
             let seed = self.noise_seed(0);
+            let spec = &self.spec;
+            let pattern = &mut self.pattern;
             let pixels = off_the_async_workers(|| {
-                test_pattern(
-                    self.spec.width,
-                    self.spec.height,
-                    self.spec.bit_depth,
-                    seed,
-                    trigger_id,
-                )
+                pattern
+                    .get_or_insert_with(|| {
+                        TestPattern::new(spec.width, spec.height, spec.bit_depth, seed)
+                    })
+                    .frame(trigger_id)
             });
             (
                 pixels,

@@ -15,7 +15,7 @@ pub use cart::SimCart;
 pub use laser::SimLaser;
 pub use mirror::{MirroredAxis, MirroredLaser};
 pub use switches::SimSwitchBank;
-pub use test_pattern::test_pattern;
+pub use test_pattern::{TestPattern, test_pattern};
 pub use trigger::SimTrigger;
 
 /// Latency of one command on the simulated serial link (not modelled by the planner's
