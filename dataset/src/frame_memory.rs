@@ -41,8 +41,8 @@ pub fn keep_frame_memory() -> bool {
 }
 
 /// Gives the memory the allocator kept for frames (see [`keep_frame_memory`]) back to the
-/// system once no run is making frames, so an idle daemon holds its live data only (after
-/// two quickstarts, 485 MiB resident against 826 MiB). Returns whether any memory went back;
+/// system once no run is making frames, so an idle daemon holds its live data only (measured
+/// in the README's "The daemon's memory"). Returns whether any memory went back;
 /// false where the C library is not glibc.
 #[allow(unsafe_code)]
 pub fn release_frame_memory() -> bool {

@@ -3,7 +3,8 @@
 //! It is built on tokio's clock. In simulation the runtime runs with paused time, so tokio
 //! advances the clock to the next timer whenever every task is waiting: a six-hour plan runs in
 //! seconds, deterministically, and still reports its rig time. On real hardware the same code
-//! waits in real time, on a kernel timer precise to microseconds (see [`sleep`]).
+//! waits in real time, on a kernel timer that ends within tenths of a millisecond (see
+//! [`sleep`]).
 
 use std::time::Duration;
 use tokio::io::Interest;
