@@ -76,7 +76,7 @@ pub(super) async fn capture(
     if let Some(last) = live.last_capture_s {
         ready = ready.max(last + min_interval_s);
     }
-    rig.clock.sleep_s(ready - now).await;
+    rig.clock.sleep_until_s(ready).await;
     live.last_capture_s = Some(rig.clock.now_s());
 
     let mut out = StepFrames::default();

@@ -31,7 +31,9 @@ pub struct SimCamera {
     ground_truth: Option<(WorldSnapshot, Arc<GroundTruthData>)>,
     /// Rendering time, which the camera's frame timeouts do not count.
     compute: ComputeTime,
-    /// The test pattern's plate, drawn at the first frame of `sim.frames = "pattern"`.
+    /// The test pattern's plate (`sim.frames = "pattern"`), drawn when the camera is first
+    /// armed, as a camera allocates its buffers when acquisition starts: drawn at the first
+    /// trigger instead, it delayed the first captures of a run.
     pattern: Option<TestPattern>,
 }
 
@@ -122,6 +124,12 @@ impl CameraDriver for SimCamera {
         if self.armed.is_none() {
             self.armed = Some(self.world.subscribe());
         }
+        if self.world.sim().frames == FrameSource::Pattern && self.pattern.is_none() {
+            let (spec, seed) = (&self.spec, self.noise_seed(0));
+            self.pattern = Some(off_the_async_workers(|| {
+                TestPattern::new(spec.width, spec.height, spec.bit_depth, seed)
+            }));
+        }
         Ok(())
     }
 
@@ -174,7 +182,7 @@ impl CameraDriver for SimCamera {
         let start = pulse.rig_time_s;
         let end = start + self.exposure_s;
         self.world.begin_exposure(start, end);
-        clock.sleep_s(end - clock.now_s()).await;
+        clock.sleep_until_s(end).await;
         let compute = self.compute.clone();
         let (pixels, notes, ground_truth) = if self.world.sim().frames == FrameSource::Pattern {
             let seed = self.noise_seed(0);
@@ -219,9 +227,7 @@ impl CameraDriver for SimCamera {
             })?;
             (rendered.pixels, rendered.notes, ground_truth)
         };
-        clock
-            .sleep_s(end + self.spec.readout_s() - clock.now_s())
-            .await;
+        clock.sleep_until_s(end + self.spec.readout_s()).await;
         Ok(Frame {
             camera: id,
             trigger_id,
