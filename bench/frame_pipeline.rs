@@ -6,6 +6,10 @@
 //! captures (the writer's memory budget is full and the next capture waits for it) and a
 //! missing frame as a device fault.
 //!
+//! A capture is late when its trigger (the frames' `rig_time_s` in the index: when they were
+//! exposed) comes more than 10 % of the period after the previous one's. The intervals between
+//! the steps' ends (frames read out and handed to the writer) are reported beside them.
+//!
 //! Frames are deleted once written (the benchmark's disk would not hold ten minutes of them);
 //! their sizes are counted first.
 //!
@@ -75,6 +79,63 @@ fn plan(n: usize, rate: f64) -> Plan {
     }
 }
 
+/// The intervals between successive events of a run, against the planned period.
+struct Intervals {
+    /// Intervals longer than the period by more than [`LATE_FRACTION`].
+    late: usize,
+    worst_s: f64,
+    /// The 99th and 99.9th percentiles (nearest rank): finer than the late count for comparing
+    /// builds, since a late capture is rare.
+    p99_s: f64,
+    p999_s: f64,
+}
+
+impl Intervals {
+    fn between(times: &[f64], period: f64) -> Self {
+        let mut sorted: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
+        sorted.sort_by(f64::total_cmp);
+        let quantile = |q: f64| {
+            let rank = (q * sorted.len() as f64).ceil() as usize;
+            sorted.get(rank.max(1) - 1).copied().unwrap_or(0.0)
+        };
+        Intervals {
+            late: sorted
+                .iter()
+                .filter(|i| **i > period * (1.0 + LATE_FRACTION))
+                .count(),
+            worst_s: sorted.last().copied().unwrap_or(0.0),
+            p99_s: quantile(0.99),
+            p999_s: quantile(0.999),
+        }
+    }
+
+    fn json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "late": self.late,
+            "worst_s": self.worst_s,
+            "p99_s": self.p99_s,
+            "p999_s": self.p999_s,
+        })
+    }
+}
+
+/// Each capture step's trigger in rig time, from the run's index: the earliest frame's
+/// `rig_time_s` (every camera's frame carries its trigger's time).
+fn trigger_times(run_dir: &Path) -> Vec<f64> {
+    let db = rusqlite::Connection::open_with_flags(
+        run_dir.join(stagehand_dataset::layout::INDEX),
+        rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY,
+    )
+    .expect("run index");
+    let mut stmt = db
+        .prepare("SELECT MIN(rig_time_s) FROM frames GROUP BY step ORDER BY step")
+        .expect("query");
+    stmt.query_map([], |row| row.get(0))
+        .expect("frames")
+        .collect::<Result<_, _>>()
+        .expect("trigger times")
+}
+
 /// A line of /proc/self/status in kB (VmRSS, VmHWM).
 fn status_kb(key: &str) -> u64 {
     std::fs::read_to_string("/proc/self/status")
@@ -110,8 +171,10 @@ struct Measured {
     frames: usize,
     wall_s: f64,
     achieved_hz: f64,
-    late: usize,
-    worst_interval_s: f64,
+    /// Between the triggers of successive captures: when the frames were exposed.
+    triggers: Intervals,
+    /// Between the ends of successive capture steps (frames read out and handed to the writer).
+    ends: Intervals,
     faults: usize,
     max_queue_steps: usize,
     disk_bytes: u64,
@@ -127,7 +190,8 @@ fn measure(seconds: f64, rate: f64, (w, h): (u32, u32), out: &Path) -> Measured 
         .build()
         .expect("runtime");
     let store = session::create_run(&prepared, out, 1).expect("run dir");
-    let frames_dir: PathBuf = store.dir().join("frames");
+    let run_dir: PathBuf = store.dir().to_path_buf();
+    let frames_dir = run_dir.join(stagehand_dataset::layout::FRAMES_DIR);
     let done = Arc::new(AtomicBool::new(false));
     let disk_bytes = Arc::new(AtomicU64::new(0));
     // Memory every second; written frames deleted as they land.
@@ -172,8 +236,10 @@ fn measure(seconds: f64, rate: f64, (w, h): (u32, u32), out: &Path) -> Measured 
             reserve_bytes: 0,
         };
         let rig = session::open_rig(&prepared.rig, 1, None).expect("rig opens");
-        let summary = session::run(prepared, store, rig, wiring)
+        // On a worker, as the daemon runs it.
+        let summary = tokio::spawn(session::run(prepared, store, rig, wiring))
             .await
+            .expect("run task")
             .expect("run");
         (summary, listener.await.expect("listener"))
     });
@@ -183,7 +249,6 @@ fn measure(seconds: f64, rate: f64, (w, h): (u32, u32), out: &Path) -> Measured 
     sweep_frames(&frames_dir, &disk_bytes);
     let (ends, max_queue_steps, faults) = events;
     let period = 1.0 / rate;
-    let intervals: Vec<f64> = ends.windows(2).map(|w| w[1] - w[0]).collect();
     let span = ends.last().copied().unwrap_or(0.0) - ends.first().copied().unwrap_or(0.0);
     Measured {
         steps: summary.steps_done,
@@ -194,11 +259,8 @@ fn measure(seconds: f64, rate: f64, (w, h): (u32, u32), out: &Path) -> Measured 
         } else {
             0.0
         },
-        late: intervals
-            .iter()
-            .filter(|i| **i > period * (1.0 + LATE_FRACTION))
-            .count(),
-        worst_interval_s: intervals.iter().copied().fold(0.0, f64::max),
+        triggers: Intervals::between(&trigger_times(&run_dir), period),
+        ends: Intervals::between(&ends, period),
         faults,
         max_queue_steps,
         disk_bytes: disk_bytes.load(Ordering::Relaxed),
@@ -265,8 +327,9 @@ fn main() {
                 "raw_mb_per_s": raw_mb / m.wall_s,
                 "disk_mb_per_s": m.disk_bytes as f64 / 1e6 / m.wall_s,
                 "compression": m.disk_bytes as f64 / 1e6 / raw_mb.max(1e-9),
-                "late_captures": m.late,
-                "worst_interval_s": m.worst_interval_s,
+                "late_captures": m.triggers.late,
+                "trigger_intervals": m.triggers.json(),
+                "step_end_intervals": m.ends.json(),
                 "device_faults": m.faults,
                 "max_queue_steps": m.max_queue_steps,
                 "rss_mib_quarters": [quarter(1), quarter(2), quarter(3), m.rss_mib.last()],
