@@ -19,6 +19,7 @@
 //! settings alone (see `stagehand_dataset::frame_memory`).
 
 // Shared with the other benchmarks; this one runs on its own real-time runtime, not `support::run`.
+mod stats;
 #[allow(dead_code)]
 mod support;
 
@@ -33,6 +34,7 @@ use stagehand::plan::{Action, Plan};
 use stagehand::rig::RigSource;
 use stagehand::session::{self, Wiring};
 use stagehand_devices::rig::BUILTIN_LIGHTSTAGE;
+use stats::{percentile, sorted};
 use support::{prepared_from_plan, step};
 
 /// Exposure of every capture: short, so the rate is the pipeline's, not the exposure's.
@@ -84,7 +86,7 @@ struct Intervals {
     /// Intervals longer than the period by more than [`LATE_FRACTION`].
     late: usize,
     worst_s: f64,
-    /// The 99th and 99.9th percentiles (nearest rank): finer than the late count for comparing
+    /// The 99th and 99.9th percentiles: finer than the late count for comparing
     /// builds, since a late capture is rare.
     p99_s: f64,
     p999_s: f64,
@@ -92,20 +94,15 @@ struct Intervals {
 
 impl Intervals {
     fn between(times: &[f64], period: f64) -> Self {
-        let mut sorted: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
-        sorted.sort_by(f64::total_cmp);
-        let quantile = |q: f64| {
-            let rank = (q * sorted.len() as f64).ceil() as usize;
-            sorted.get(rank.max(1) - 1).copied().unwrap_or(0.0)
-        };
+        let sorted = sorted(times.windows(2).map(|w| w[1] - w[0]).collect());
         Intervals {
             late: sorted
                 .iter()
                 .filter(|i| **i > period * (1.0 + LATE_FRACTION))
                 .count(),
             worst_s: sorted.last().copied().unwrap_or(0.0),
-            p99_s: quantile(0.99),
-            p999_s: quantile(0.999),
+            p99_s: percentile(&sorted, 0.99),
+            p999_s: percentile(&sorted, 0.999),
         }
     }
 

@@ -14,6 +14,8 @@
 //! turntable positions of the run; about 0.7 s each). Prints a table, then one JSON line.
 
 mod clients;
+#[path = "../stats.rs"]
+mod stats;
 
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
@@ -30,6 +32,8 @@ use stagehand_devices::rig::BUILTIN_LIGHTSTAGE;
 use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
 use tokio::net::TcpStream;
 use tokio::sync::watch;
+
+use stats::{percentile, sorted};
 
 type BoxError = Box<dyn std::error::Error + Send + Sync>;
 type Result<T, E = BoxError> = std::result::Result<T, E>;
@@ -339,19 +343,6 @@ fn main() -> Result<()> {
 }
 
 // ------------------------------------------------------------------------------ statistics
-
-fn percentile(sorted: &[f64], p: f64) -> f64 {
-    if sorted.is_empty() {
-        return f64::NAN;
-    }
-    let i = ((sorted.len() as f64 - 1.0) * p).round() as usize;
-    sorted[i.min(sorted.len() - 1)]
-}
-
-fn sorted(mut v: Vec<f64>) -> Vec<f64> {
-    v.sort_by(f64::total_cmp);
-    v
-}
 
 /// Mean step time by kind.
 fn by_kind(r: &RunResult) -> std::collections::BTreeMap<String, (usize, f64)> {

@@ -4,7 +4,7 @@
 //! advances the clock to the next timer whenever every task is waiting: a six-hour plan runs in
 //! seconds, deterministically, and still reports its rig time. On real hardware the same code
 //! waits in real time, on a kernel timer that ends within tenths of a millisecond (see
-//! [`sleep`]).
+//! [`sleep_until`]).
 
 use std::time::Duration;
 use tokio::io::Interest;

@@ -97,6 +97,16 @@ impl SimCamera {
         Ok(Some(data))
     }
 
+    /// The test pattern's plate, drawn (off the async workers) the first time it is asked for.
+    fn pattern_plate(&mut self) -> &TestPattern {
+        let (spec, seed) = (&self.spec, self.noise_seed(0));
+        self.pattern.get_or_insert_with(|| {
+            off_the_async_workers(|| {
+                TestPattern::new(spec.width, spec.height, spec.bit_depth, seed)
+            })
+        })
+    }
+
     fn noise_seed(&self, trigger_id: u64) -> u64 {
         // FNV-1a over (seed, camera id, trigger id): stable across runs and platforms.
         let mut h: u64 = 0xcbf2_9ce4_8422_2325;
@@ -124,11 +134,8 @@ impl CameraDriver for SimCamera {
         if self.armed.is_none() {
             self.armed = Some(self.world.subscribe());
         }
-        if self.world.sim().frames == FrameSource::Pattern && self.pattern.is_none() {
-            let (spec, seed) = (&self.spec, self.noise_seed(0));
-            self.pattern = Some(off_the_async_workers(|| {
-                TestPattern::new(spec.width, spec.height, spec.bit_depth, seed)
-            }));
+        if self.world.sim().frames == FrameSource::Pattern {
+            self.pattern_plate();
         }
         Ok(())
     }
@@ -185,16 +192,8 @@ impl CameraDriver for SimCamera {
         clock.sleep_until_s(end).await;
         let compute = self.compute.clone();
         let (pixels, notes, ground_truth) = if self.world.sim().frames == FrameSource::Pattern {
-            let seed = self.noise_seed(0);
-            let spec = &self.spec;
-            let pattern = &mut self.pattern;
-            let pixels = off_the_async_workers(|| {
-                pattern
-                    .get_or_insert_with(|| {
-                        TestPattern::new(spec.width, spec.height, spec.bit_depth, seed)
-                    })
-                    .frame(trigger_id)
-            });
+            let plate = self.pattern_plate();
+            let pixels = off_the_async_workers(|| plate.frame(trigger_id));
             (
                 pixels,
                 serde_json::json!({ "source": "test pattern" }),
