@@ -364,8 +364,15 @@ impl World {
         self.lock().laser_colour_nm
     }
 
+    /// Trigger pulses for a simulated camera: it listens while armed.
     pub(crate) fn subscribe(&self) -> broadcast::Receiver<Pulse> {
         self.pulses.subscribe()
+    }
+
+    /// How many simulated cameras are armed (listening for trigger pulses): a run that ends,
+    /// however it ends, leaves none.
+    pub fn armed_cameras(&self) -> usize {
+        self.pulses.receiver_count()
     }
 
     /// The rig's state at rig time `t` (for rendering and for tests).

@@ -1,6 +1,6 @@
-//! One capture step: wait for lamp warm-up and pacing, then for each exposure of the bracket
-//! configure and arm every listed camera, fire one trigger, and collect exactly one frame per
-//! camera for that trigger id.
+//! One capture step: check the rig's state, arm every listed camera and set up the first
+//! exposure, wait for lamp warm-up and pacing, then for each exposure of the bracket fire one
+//! trigger and collect exactly one frame per camera for that trigger id.
 
 use stagehand_devices::{DeviceError, DeviceErrorKind, Frame};
 
@@ -66,9 +66,8 @@ pub(super) async fn capture(
         .as_ref()
         .ok_or_else(|| missing("trigger", "this rig has no trigger source"))?;
 
-    // Lamp warm-up and sweep pacing.
-    let now = rig.clock.now_s();
-    let mut ready = now;
+    // Lamp warm-up and sweep pacing: the earliest time the trigger may fire.
+    let mut ready = rig.clock.now_s();
     for (id, since) in &live.lamp_on_since {
         let warm = rig.spec.lamp(id).map(|l| l.warmup_s).unwrap_or(0.0);
         ready = ready.max(since + warm);
@@ -76,13 +75,15 @@ pub(super) async fn capture(
     if let Some(last) = live.last_capture_s {
         ready = ready.max(last + min_interval_s);
     }
-    rig.clock.sleep_until_s(ready).await;
-    live.last_capture_s = Some(rig.clock.now_s());
 
     let mut out = StepFrames::default();
     // A frame is only worth keeping if the rig was as planned throughout its exposure: checked
     // before, after, and for the laser (which the interlock can switch off at any moment)
-    // throughout.
+    // throughout. Everything a trigger needs (the check, arming, the first exposure's settings)
+    // is done before the pacing deadline, so that at the deadline only the trigger fires: a
+    // relay board read back over serial or a camera's settings over the network would
+    // otherwise delay every paced trigger, and each device round trip is a chance for the
+    // task to wait for a core.
     verify_state(ex, live).await?;
     let mut laser_watch = rig.laser.as_ref().map(|l| {
         let mut w = l.watch();
@@ -95,6 +96,10 @@ pub(super) async fn capture(
             try_all(handles.iter().map(|c| c.configure(exposure, *gain))).await?;
             let id = trigger_id(step.index, e);
             try_all(handles.iter().map(|c| c.expect(id, exposure))).await?;
+            if e == 0 {
+                rig.clock.sleep_until_s(ready).await;
+                live.last_capture_s = Some(rig.clock.now_s());
+            }
             trigger.fire(id).await?;
             let frames = try_all(handles.iter().map(|c| c.frame_for(id, exposure))).await?;
             for frame in frames {

@@ -5,7 +5,7 @@
 //! - A step is done when its frames are durable: the writer commits the journal row only
 //!   after the files are fsynced and renamed.
 //! - Pause takes effect at the next step boundary; abort interrupts the step and puts the rig
-//!   in its safe state (laser off and disarmed, lamps off, axes stopped).
+//!   in its safe state (laser off and disarmed, lamps off, axes stopped, cameras disarmed).
 //! - Trigger ids are derived from (step, exposure), so a resumed run reproduces exactly the
 //!   frames an uninterrupted one would have captured.
 

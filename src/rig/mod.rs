@@ -179,7 +179,8 @@ impl Rig {
         })
     }
 
-    /// Safe state: laser off and disarmed, every switched output off, every axis stopped.
+    /// Safe state: laser off and disarmed, every switched output off, every axis stopped, every
+    /// camera disarmed (a capture arms them before its pacing wait, where an abort can end it).
     /// Tries every device even if one fails and reports the first failure.
     pub async fn safe_state(&self) -> DeviceResult<()> {
         let mut first: Option<DeviceError> = None;
@@ -197,6 +198,9 @@ impl Rig {
         }
         for a in self.axes.values() {
             note(a.stop().await.map(|_| ()));
+        }
+        for c in self.cameras.values() {
+            note(c.set_armed(false).await);
         }
         match first {
             Some(e) => Err(e),

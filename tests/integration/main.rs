@@ -25,6 +25,7 @@ mod emulated_rig;
 mod ground_truth;
 mod kill_resume;
 mod laser_geometry;
+mod pacing;
 mod process;
 mod real_grbl_quickstart;
 mod rectification;
