@@ -15,8 +15,8 @@
 //! three test patterns (5, 20 and 80 ms) merged with hat weights into DN per second, encoded
 //! with each lossless OpenEXR compression.
 //!
-//! Run: `cargo bench --bench frame_formats [-- FRAMES [RUN_DIR]]` (default 24 frames per
-//! format).
+//! Run: `cargo bench --bench frame_formats [-- FRAMES [RUN_DIR] [NAME…]]` (default 24 frames
+//! per format; with NAMEs, only the formats whose name contains one of them).
 
 use std::io::Write;
 use std::time::Instant;
@@ -124,6 +124,12 @@ fn main() {
         .iter()
         .map(std::path::Path::new)
         .find(|p| p.join("frames").is_dir());
+    // Any other argument selects formats by a part of their name.
+    let only: Vec<&str> = args
+        .iter()
+        .filter(|a| a.parse::<usize>().is_err() && !std::path::Path::new(a).join("frames").is_dir())
+        .map(String::as_str)
+        .collect();
     let patterns: Vec<Raw> = match run {
         Some(dir) => frames_of_run(dir, frames),
         None => (0..frames as u64)
@@ -202,7 +208,7 @@ fn main() {
         let encode: Encoder<Raw> = Box::new(move |f| png(f, compression, filter));
         (name, encode)
     }));
-    measure(&formats, &patterns, raw_bytes);
+    measure(&formats, &patterns, raw_bytes, &only);
     let brackets: Vec<Vec<f32>> = (0..frames as u64).map(bracket).collect();
     let exr = |compression: Compression| -> Encoder<Vec<f32>> {
         Box::new(move |p| {
@@ -219,7 +225,7 @@ fn main() {
         ("exr f32 RLE", exr(Compression::RLE)),
         ("exr f32 uncompressed", exr(Compression::Uncompressed)),
     ];
-    measure(&hdr_formats, &brackets, raw_bytes * 2.0);
+    measure(&hdr_formats, &brackets, raw_bytes * 2.0, &only);
 }
 
 /// A bracket of three test patterns (5, 20, 80 ms; the pattern stands for 20 ms) merged into
@@ -252,14 +258,18 @@ fn bracket(t: u64) -> Vec<f32> {
 
 /// Encodes, hashes and durably writes every frame in each of `formats`, printing one JSON
 /// object per format (`raw_bytes`: the frame's uncompressed size).
-fn measure<F>(formats: &[(&str, Encoder<F>)], frames_in: &[F], raw_bytes: f64) {
+fn measure<F>(formats: &[(&str, Encoder<F>)], frames_in: &[F], raw_bytes: f64, only: &[&str]) {
+    let formats: Vec<_> = formats
+        .iter()
+        .filter(|(name, _)| only.is_empty() || only.iter().any(|o| name.contains(o)))
+        .collect();
     let frames = frames_in.len();
     let scratch = tempfile::tempdir().expect("scratch");
     // Every encoder once first, so that none pays for the process's first allocations.
-    for (_, encode) in formats {
+    for (_, encode) in &formats {
         std::hint::black_box(encode(&frames_in[0]));
     }
-    for (name, encode) in formats {
+    for (name, encode) in &formats {
         let started = Instant::now();
         let encoded: Vec<Vec<u8>> = frames_in.iter().map(encode).collect();
         let encode_s = started.elapsed().as_secs_f64() / frames as f64;

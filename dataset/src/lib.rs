@@ -19,6 +19,7 @@
 //! | [`atomic`] | temp → fsync → rename → fsync dir |
 //! | [`checksum`] | SHA-256 of frame files |
 //! | [`png16`] | 16-bit RGB PNG with iTXt metadata |
+//! | `png_rgb16` | a 16-bit RGB PNG's bytes in one pass: convert, filter and deflate row by row |
 //! | [`exr_file`] | the OpenEXR conventions both EXR kinds share (ZIP16 unless told, metadata attribute) |
 //! | [`exr_hdr`] | OpenEXR f32 RGB: uncompressed as captured, ZIP for products |
 //! | [`exr_planes`] | OpenEXR f32 named channels (ground truth), ZIP |
@@ -72,6 +73,7 @@ pub mod layout;
 pub mod manifest;
 pub mod plan;
 pub mod png16;
+mod png_rgb16;
 pub mod products;
 pub mod query;
 pub mod reader;

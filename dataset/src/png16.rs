@@ -11,6 +11,7 @@
 use std::io::Cursor;
 
 use crate::error::{Result, StorageError};
+use crate::png_rgb16::{Rgb16, Rgb16Error, encode_rgb16};
 
 /// Keyword of the iTXt chunk holding the frame metadata JSON.
 pub const ITXT_KEYWORD: &str = "stagehand";
@@ -161,77 +162,35 @@ fn encode(
         });
     }
     let shift = sensor_bits.map(|bits| msb_shift(name, bits)).transpose()?;
-    let png_err = |source| StorageError::PngEncode {
-        name: name.to_string(),
-        source,
-    };
     let shift = shift.unwrap_or(0);
-    let limit = u16::MAX >> shift;
-    // The largest sample first, in vector lanes (a search for the first sample above the
-    // limit runs one sample at a time: 6 % of the writer's CPU at full size); the search
-    // only to name the sample of a frame that fails.
-    let largest = pixels.iter().fold(0u16, |m, &v| m.max(v));
-    if largest > limit
-        && let Some(&v) = pixels.iter().find(|&&v| v > limit)
-    {
-        return Err(StorageError::InvalidFrame {
+    // The iTXt chunk: keyword, then no compression, no language tag, no translated keyword.
+    let itxt = [ITXT_KEYWORD.as_bytes(), &[0; 5], metadata_json.as_bytes()].concat();
+    let sbit = sensor_bits.map(|bits| [bits; 3]);
+    let mut chunks: Vec<(&[u8; 4], &[u8])> = vec![(b"iTXt", &itxt[..])];
+    if let Some(sbit) = &sbit {
+        // sBIT goes before the image data (PNG spec 11.3.3.4); readers parse it.
+        chunks.push((b"sBIT", sbit));
+    }
+    let image = Rgb16 {
+        width,
+        height,
+        pixels,
+        shift,
+    };
+    encode_rgb16(&image, &chunks, deflate).map_err(|e| match e {
+        Rgb16Error::SampleTooLarge(v) => StorageError::InvalidFrame {
             name: name.to_string(),
             reason: format!(
-                "sample {v} is above the largest DN {limit} of a {}-bit sensor",
+                "sample {v} is above the largest DN {} of a {}-bit sensor",
+                u16::MAX >> shift,
                 16 - shift
             ),
-        });
-    }
-    // Checked first and converted in a loop without a branch: it runs in vector lanes.
-    // The big-endian samples in a buffer kept per thread: a fresh one would page-fault its
-    // 4.7 MB in on every full-size frame.
-    SCRATCH.with_borrow_mut(|data| {
-        // Every byte is overwritten below: no need to zero a buffer of the right size.
-        if data.len() != samples * 2 {
-            data.clear();
-            data.resize(samples * 2, 0);
-        }
-        for (out, &v) in data.chunks_exact_mut(2).zip(pixels) {
-            out.copy_from_slice(&(v << shift).to_be_bytes());
-        }
-        // Room for the stored form (the raw bytes, a filter byte per row and block headers),
-        // so the output never moves while it grows.
-        let rows = height as usize;
-        let mut out = Vec::with_capacity(samples * 2 + rows + samples / 8192 + 4096);
-        let mut encoder = png::Encoder::new(&mut out, width, height);
-        encoder.set_color(png::ColorType::Rgb);
-        encoder.set_depth(png::BitDepth::Sixteen);
-        match deflate {
-            // On sensor frames the fastest deflate with the Up filter compresses within a few
-            // per cent of `Fast` with its adaptive filter, in about half the CPU.
-            Deflate::Fastest => {
-                encoder.set_compression(png::Compression::Fastest);
-                encoder.set_filter(png::Filter::Up);
-            }
-            Deflate::Stored => {
-                encoder.set_compression(png::Compression::NoCompression);
-                encoder.set_filter(png::Filter::NoFilter);
-            }
-        }
-        encoder
-            .add_itxt_chunk(ITXT_KEYWORD.to_string(), metadata_json.to_string())
-            .map_err(png_err)?;
-        let mut writer = encoder.write_header().map_err(png_err)?;
-        if let Some(bits) = sensor_bits {
-            // sBIT goes before the image data (PNG spec 11.3.3.4); the crate parses it on read.
-            writer
-                .write_chunk(png::chunk::sBIT, &[bits; 3])
-                .map_err(png_err)?;
-        }
-        writer.write_image_data(data).map_err(png_err)?;
-        writer.finish().map_err(png_err)?;
-        Ok(out)
+        },
+        Rgb16Error::Io(e) => StorageError::PngEncode {
+            name: name.to_string(),
+            source: e.into(),
+        },
     })
-}
-
-thread_local! {
-    /// [`encode`]'s byte buffer, reused by every frame a thread encodes.
-    static SCRATCH: std::cell::RefCell<Vec<u8>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// Decodes a 16-bit RGB PNG written by [`encode_png16`] (or by a stagehand before MSB
