@@ -16,7 +16,8 @@
 //! Run: `cargo bench --bench frame_pipeline -- [SECONDS [RATES [WxH]]]`, e.g.
 //! `-- 600 15` (the ten minutes at the seed's 15 Hz) or `-- 60 7.5,15,30`.
 //! Prints one JSON object per rate. `STAGEHAND_FRAME_MEMORY=default` leaves the allocator's
-//! settings alone (see `stagehand_dataset::frame_memory`).
+//! settings alone (see `stagehand_dataset::frame_memory`); `STAGEHAND_REALTIME_PRIORITY=N`
+//! runs the runtime's threads at `SCHED_FIFO` N, as `stagehand --realtime-priority N` does.
 
 // Shared with the other benchmarks; this one runs on its own real-time runtime, not `support::run`.
 mod stats;
@@ -184,6 +185,7 @@ fn measure(seconds: f64, rate: f64, (w, h): (u32, u32), out: &Path) -> Measured 
     let prepared = prepared_from_plan(plan(n, rate), rig(w, h, rate));
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
+        .on_thread_start(stagehand_devices::realtime::raise_this_thread)
         .build()
         .expect("runtime");
     let store = session::create_run(&prepared, out, 1).expect("run dir");
@@ -269,6 +271,8 @@ fn measure(seconds: f64, rate: f64, (w, h): (u32, u32), out: &Path) -> Measured 
 /// Set to `default` to leave glibc's allocator settings as they are, for the side-by-side
 /// figure; otherwise the benchmark keeps frame memory as `stagehand` does at start.
 const ALLOCATOR_ENV: &str = "STAGEHAND_FRAME_MEMORY";
+/// Set to a priority (1–99) to run as `stagehand --realtime-priority` does.
+const REALTIME_ENV: &str = "STAGEHAND_REALTIME_PRIORITY";
 
 fn main() {
     // As `stagehand`'s main does, before any thread starts.
@@ -279,6 +283,14 @@ fn main() {
     } else {
         "frame memory not kept (not glibc)"
     };
+    if let Ok(v) = std::env::var(REALTIME_ENV) {
+        let priority = v
+            .parse::<u8>()
+            .ok()
+            .filter(|p| (1..=99).contains(p))
+            .unwrap_or_else(|| panic!("{REALTIME_ENV}={v}: expected a priority from 1 to 99"));
+        stagehand_devices::realtime::set_priority(priority);
+    }
     let args: Vec<String> = std::env::args()
         .skip(1)
         .filter(|a| !a.starts_with("--"))
@@ -313,6 +325,7 @@ fn main() {
                 "bit_depth": 16,
                 "format": "png16 fast",
                 "allocator": allocator,
+                "realtime_priority": stagehand_devices::realtime::priority(),
                 "scratch": tmp.path(),
                 "rate_hz": rate,
                 "seconds": seconds,

@@ -339,6 +339,7 @@ pub fn runtime_for(rig: &RigSource) -> std::io::Result<tokio::runtime::Runtime> 
     } else {
         tokio::runtime::Builder::new_multi_thread()
             .enable_all()
+            .on_thread_start(stagehand_devices::realtime::raise_this_thread)
             .build()
     }
 }

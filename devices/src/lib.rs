@@ -23,6 +23,7 @@ pub mod ir_cart;
 pub mod laser;
 pub mod lens;
 pub mod motion;
+pub mod realtime;
 pub mod relay_serial;
 mod request;
 pub mod rig;

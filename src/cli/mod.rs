@@ -32,6 +32,11 @@ use crate::session::{self, DEFAULT_RESERVE_BYTES, SessionError, Wiring};
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Run the rig's threads at this real-time priority (Linux SCHED_FIFO, 1-99) so that paced
+    /// triggers fire on time while the frame writer keeps the cores busy; needs CAP_SYS_NICE
+    /// or an RLIMIT_RTPRIO at least this high (README: "Installing on a lab PC").
+    #[arg(long, global = true, value_name = "PRIORITY", value_parser = clap::value_parser!(u8).range(1..=99))]
+    realtime_priority: Option<u8>,
 }
 
 #[derive(Subcommand, Debug)]
@@ -167,6 +172,9 @@ pub fn main() -> i32 {
             return code;
         }
     };
+    if let Some(priority) = cli.realtime_priority {
+        stagehand_devices::realtime::set_priority(priority);
+    }
     let _ = tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_env("STAGEHAND_LOG")

@@ -44,7 +44,7 @@ impl Operator for TerminalOperator {
 /// Shows `message` above the progress bar and waits for Enter (continue) or `abort` (or the
 /// end of the input).
 async fn ask(bar: ProgressBar, message: String, enter: &'static str) -> Answer {
-    let asked = tokio::task::spawn_blocking(move || {
+    let asked = stagehand_devices::realtime::spawn_blocking(move || {
         bar.suspend(|| {
             eprintln!("\n── {message}");
             eprintln!("   {enter}, or type `abort` and Enter to stop the run safely");

@@ -283,6 +283,7 @@ async fn not_found(uri: Uri) -> impl IntoResponse {
 pub fn serve(opts: ServeOptions) -> Result<(), DaemonError> {
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
+        .on_thread_start(stagehand_devices::realtime::raise_this_thread)
         .build()
         .map_err(|e| DaemonError::Io(format!("cannot start the runtime: {e}")))?;
     runtime.block_on(async move {

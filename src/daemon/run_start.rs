@@ -128,7 +128,7 @@ async fn prepare_run(
     let root = app.runs_dir();
     let seed = app.seed;
     let name = source.name.clone();
-    tokio::task::spawn_blocking(move || {
+    stagehand_devices::realtime::spawn_blocking(move || {
         let prepared = session::prepare(source, &set, rig)?;
         let store = session::create_run(&prepared, &root, seed)?;
         Ok::<_, SessionError>((prepared, store))
@@ -240,7 +240,7 @@ pub async fn resume_stored(app: &AppState, run_id: &str) -> Result<Arc<ActiveRun
     };
     let opened = {
         let dir = dir.clone();
-        tokio::task::spawn_blocking(move || {
+        stagehand_devices::realtime::spawn_blocking(move || {
             let stored = stored_runs::read(&dir);
             session::reopen(&dir).map(|r| {
                 let eta = remaining_rig_time_s(&r);
@@ -391,10 +391,12 @@ pub async fn capture(app: &AppState, req: CaptureRequest) -> Result<CaptureResul
     }
     let dir = active.dir.clone();
     let id = run_id.clone();
-    let frames = tokio::task::spawn_blocking(move || frame_index::frames_of_step(&dir, &id, step))
-        .await
-        .map_err(|e| ApiError::internal(format!("listing the frames stopped: {e}")))?
-        .map_err(|e| ApiError::internal(format!("cannot list the frames: {e}")))?;
+    let frames = stagehand_devices::realtime::spawn_blocking(move || {
+        frame_index::frames_of_step(&dir, &id, step)
+    })
+    .await
+    .map_err(|e| ApiError::internal(format!("listing the frames stopped: {e}")))?
+    .map_err(|e| ApiError::internal(format!("cannot list the frames: {e}")))?;
     Ok(CaptureResult { run_id, frames })
 }
 

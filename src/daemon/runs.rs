@@ -489,7 +489,7 @@ impl Reservation {
             let outcome = outcome_of(&supervised, joined);
             finish(&app, &supervised, outcome);
             // No frames are made until the next run: the memory kept for them goes back.
-            tokio::task::spawn_blocking(stagehand_dataset::release_frame_memory);
+            stagehand_devices::realtime::spawn_blocking(stagehand_dataset::release_frame_memory);
         });
         Ok(active)
     }
@@ -642,7 +642,7 @@ pub fn for_api(message: &str, run_id: &str) -> String {
 async fn publish_frames(app: &AppState, active: &Arc<ActiveRun>, step: usize) {
     let dir = active.dir.clone();
     let run_id = active.run_id.clone();
-    let frames = tokio::task::spawn_blocking(move || {
+    let frames = stagehand_devices::realtime::spawn_blocking(move || {
         crate::daemon::frame_index::frames_of_step(&dir, &run_id, step)
     })
     .await

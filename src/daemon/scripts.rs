@@ -488,7 +488,7 @@ pub async fn dry_run_async(
     set: Vec<(String, String)>,
     rig: RigSource,
 ) -> Result<DryRun, ApiError> {
-    tokio::task::spawn_blocking(move || dry_run(&script, &set, &rig))
+    stagehand_devices::realtime::spawn_blocking(move || dry_run(&script, &set, &rig))
         .await
         .map_err(|e| ApiError::internal(format!("the dry run stopped: {e}")))
 }

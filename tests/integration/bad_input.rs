@@ -150,6 +150,16 @@ fn bad_set_override() {
 }
 
 #[test]
+fn realtime_priority_out_of_range() {
+    let _turn = crate::grbl_peer::alongside();
+    let seq = root().join("sequences/quickstart.rhai");
+    for bad in ["0", "100", "high"] {
+        let o = stagehand(&["plan", seq.to_str().unwrap(), "--realtime-priority", bad]);
+        assert_bad(&o, &["--realtime-priority", bad]);
+    }
+}
+
+#[test]
 fn unwritable_output_directory() {
     let _turn = crate::grbl_peer::alongside();
     let tmp = tempfile::tempdir().unwrap();

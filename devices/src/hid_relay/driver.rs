@@ -296,6 +296,8 @@ impl HidRelayBank {
         std::thread::Builder::new()
             .name(format!("hid-relay {device}"))
             .spawn(move || {
+                // It switches the trigger line: raised like the runtime's threads.
+                crate::realtime::raise_this_thread();
                 while let Ok((req, reply)) = rx.recv() {
                     let _ = reply.send(worker.handle(req));
                 }

@@ -245,12 +245,16 @@ impl CameraDriver for SimCamera {
 
 /// Runs a render (CPU-bound for up to a second) without starving other tasks: on a
 /// multi-threaded runtime (the daemon, real-time rigs) the worker hands its other tasks to a
-/// fresh worker first, so the HTTP API and the e-stop stay responsive; on the single-threaded
-/// virtual-clock runtime it simply runs.
+/// fresh worker first, so the HTTP API and the e-stop stay responsive, and the render runs at
+/// normal priority when the runtime's threads are real-time (`--realtime-priority`), so it
+/// never keeps the frame writer off a core; on the single-threaded virtual-clock runtime it
+/// simply runs.
 fn off_the_async_workers<T>(f: impl FnOnce() -> T) -> T {
     use tokio::runtime::{Handle, RuntimeFlavor};
     match Handle::try_current().map(|h| h.runtime_flavor()) {
-        Ok(RuntimeFlavor::MultiThread) => tokio::task::block_in_place(f),
+        Ok(RuntimeFlavor::MultiThread) => {
+            tokio::task::block_in_place(|| stagehand_devices::realtime::at_normal_priority(f))
+        }
         _ => f(),
     }
 }

@@ -152,7 +152,7 @@ impl From<ConvertError> for ApiError {
 async fn blocking<T: Send + 'static>(
     f: impl FnOnce() -> ApiResult<T> + Send + 'static,
 ) -> ApiResult<T> {
-    tokio::task::spawn_blocking(f)
+    stagehand_devices::realtime::spawn_blocking(f)
         .await
         .map_err(|e| ApiError::internal(format!("frame worker failed: {e}")))?
 }

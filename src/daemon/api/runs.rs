@@ -108,7 +108,7 @@ async fn list_runs(
     ApiQuery(q): ApiQuery<RunsQuery>,
 ) -> ApiResult<ApiJson<Vec<RunSummary>>> {
     let root = app.runs_dir();
-    let runs = tokio::task::spawn_blocking(move || stored_runs::list(&root))
+    let runs = stagehand_devices::realtime::spawn_blocking(move || stored_runs::list(&root))
         .await
         .map_err(|e| ApiError::internal(format!("listing runs stopped: {e}")))?
         .map_err(|e| ApiError::internal(e.to_string()))?;
@@ -134,7 +134,7 @@ async fn get_run(
     ApiPath(id): ApiPath<String>,
 ) -> ApiResult<ApiJson<RunDetail>> {
     let dir = run_start::run_dir(&app, &id)?;
-    let run = tokio::task::spawn_blocking(move || stored_runs::read(&dir))
+    let run = stagehand_devices::realtime::spawn_blocking(move || stored_runs::read(&dir))
         .await
         .map_err(|e| ApiError::internal(format!("reading the run stopped: {e}")))?;
     let manifest = run.manifest.as_ref().map(|m| ManifestInfo {

@@ -27,7 +27,7 @@ use crate::script::ScriptSource;
     ))]
 async fn list_scripts(State(app): State<AppState>) -> ApiResult<ApiJson<Vec<ScriptEntry>>> {
     let lib = Library::of(&app);
-    tokio::task::spawn_blocking(move || lib.list())
+    stagehand_devices::realtime::spawn_blocking(move || lib.list())
         .await
         .map_err(|e| ApiError::internal(format!("listing scripts stopped: {e}")))?
         .map(ApiJson)
@@ -79,9 +79,10 @@ async fn put_script(
         .hint("save the script as UTF-8 and send it as `Content-Type: text/plain`")
     })?;
     let lib = Library::of(&app);
-    let (source, _replaced) = tokio::task::spawn_blocking(move || lib.write(&name, &text))
-        .await
-        .map_err(|e| ApiError::internal(format!("storing the script stopped: {e}")))??;
+    let (source, _replaced) =
+        stagehand_devices::realtime::spawn_blocking(move || lib.write(&name, &text))
+            .await
+            .map_err(|e| ApiError::internal(format!("storing the script stopped: {e}")))??;
     let dry = dry_run_async(source, Vec::new(), app.rig_source.clone()).await?;
     Ok(ApiJson(dry))
 }
@@ -101,7 +102,7 @@ async fn delete_script(
     ApiPath(name): ApiPath<String>,
 ) -> ApiResult<StatusCode> {
     let lib = Library::of(&app);
-    tokio::task::spawn_blocking(move || lib.remove(&name))
+    stagehand_devices::realtime::spawn_blocking(move || lib.remove(&name))
         .await
         .map_err(|e| ApiError::internal(format!("deleting the script stopped: {e}")))??;
     Ok(StatusCode::NO_CONTENT)

@@ -28,7 +28,7 @@ async fn verify(
     ApiPath(id): ApiPath<String>,
 ) -> ApiResult<ApiJson<VerifyReport>> {
     let runs_dir = app.runs_dir();
-    let report = tokio::task::spawn_blocking(move || {
+    let report = stagehand_devices::realtime::spawn_blocking(move || {
         let dir = frame_index::run_dir(&runs_dir, &id)?;
         verify_run(&dir).map_err(|e| {
             ApiError::internal(format!("run {id}: {e}"))
