@@ -127,7 +127,7 @@ fn main() {
     // Any other argument selects formats by a part of their name.
     let only: Vec<&str> = args
         .iter()
-        .filter(|a| a.parse::<usize>().is_err() && !std::path::Path::new(a).join("frames").is_dir())
+        .filter(|a| a.parse::<usize>().is_err() && Some(std::path::Path::new(a)) != run)
         .map(String::as_str)
         .collect();
     let patterns: Vec<Raw> = match run {

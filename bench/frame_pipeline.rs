@@ -287,7 +287,7 @@ fn main() {
         let priority = v
             .parse::<u8>()
             .ok()
-            .filter(|p| (1..=99).contains(p))
+            .filter(|p| (1..=stagehand_devices::realtime::MAX_PRIORITY).contains(p))
             .unwrap_or_else(|| panic!("{REALTIME_ENV}={v}: expected a priority from 1 to 99"));
         stagehand_devices::realtime::set_priority(priority);
     }
@@ -325,7 +325,9 @@ fn main() {
                 "bit_depth": 16,
                 "format": "png16 fast",
                 "allocator": allocator,
-                "realtime_priority": stagehand_devices::realtime::priority(),
+                // The priority the runtime's threads ran at (none if the system refused).
+                "realtime_priority": stagehand_devices::realtime::priority()
+                    .filter(|_| !stagehand_devices::realtime::refused()),
                 "scratch": tmp.path(),
                 "rate_hz": rate,
                 "seconds": seconds,

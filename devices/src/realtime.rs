@@ -19,7 +19,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 pub const MAX_PRIORITY: u8 = 99;
 
 static PRIORITY: OnceLock<u8> = OnceLock::new();
-static WARNED: AtomicBool = AtomicBool::new(false);
+/// Set at the first refusal to raise a thread (which is logged then).
+static REFUSED: AtomicBool = AtomicBool::new(false);
 
 thread_local! {
     /// The `SCHED_FIFO` priority this thread was raised to, if it was.
@@ -37,6 +38,11 @@ pub fn priority() -> Option<u8> {
     PRIORITY.get().copied()
 }
 
+/// Whether the system refused to raise a thread (logged once, by [`raise_this_thread`]).
+pub fn refused() -> bool {
+    REFUSED.load(Ordering::Relaxed)
+}
+
 /// For a runtime's `on_thread_start`: puts the calling thread at the `SCHED_FIFO` priority set
 /// with [`set_priority`] (nothing when none was set). When the system refuses, the thread keeps
 /// its scheduling and the first refusal is logged with what to do.
@@ -44,7 +50,7 @@ pub fn raise_this_thread() {
     let Some(priority) = priority() else { return };
     match set_fifo(priority) {
         Ok(()) => RAISED.set(Some(priority)),
-        Err(e) if !WARNED.swap(true, Ordering::Relaxed) => tracing::warn!(
+        Err(e) if !REFUSED.swap(true, Ordering::Relaxed) => tracing::warn!(
             "--realtime-priority {priority}: the runtime's threads keep normal scheduling: {e}; \
              give the process CAP_SYS_NICE or an RLIMIT_RTPRIO of at least {priority} \
              (systemd: AmbientCapabilities=CAP_SYS_NICE or LimitRTPRIO={priority})"

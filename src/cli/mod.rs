@@ -35,7 +35,7 @@ struct Cli {
     /// Run the rig's threads at this real-time priority (Linux SCHED_FIFO, 1-99) so that paced
     /// triggers fire on time while the frame writer keeps the cores busy; needs CAP_SYS_NICE
     /// or an RLIMIT_RTPRIO at least this high (README: "Installing on a lab PC").
-    #[arg(long, global = true, value_name = "PRIORITY", value_parser = clap::value_parser!(u8).range(1..=99))]
+    #[arg(long, global = true, value_name = "PRIORITY", value_parser = clap::value_parser!(u8).range(1..=i64::from(stagehand_devices::realtime::MAX_PRIORITY)))]
     realtime_priority: Option<u8>,
 }
 

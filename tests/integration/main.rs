@@ -28,6 +28,7 @@ mod laser_geometry;
 mod pacing;
 mod process;
 mod real_grbl_quickstart;
+mod realtime;
 mod rectification;
 mod reflectometer;
 mod run_state;
