@@ -2,7 +2,9 @@
 //! from then on), aborts any run, and puts every device in its safe state concurrently (laser
 //! disarmed, every switched output off, every axis stopped and marked for re-homing, since a
 //! stepper stopped abruptly may have lost steps); it never waits for a run or for
-//! the manual-command lock, so it finishes within one device round trip. Motion and emission
+//! the manual-command lock, so it finishes within one device round trip. Every camera is
+//! disarmed beside it, without holding up the report: a camera answers after the frame it is
+//! reading out, and cameras neither move nor emit. Motion and emission
 //! stay refused until `POST /api/estop/reset`.
 
 use std::time::{Duration, Instant};
@@ -75,12 +77,13 @@ pub struct EStopReport {
 
 /// Triggers the e-stop: latch, abort the run, then laser disarm, every bank off and every axis
 /// stopped, all at once; every device is tried even if others fail. Publishes an `estop`
-/// event and records `stagehand_estop_seconds`.
+/// event and records `stagehand_estop_seconds`. Disarms every camera in the background.
 pub async fn trigger(app: &AppState) -> EStopReport {
     let t0 = Instant::now();
     app.estop.latch();
     let aborted_run = app.runs.snapshot().map(|r| r.run_id);
     app.runs.abort();
+    spawn_disarm_cameras(app);
     let errors = safe_state(app).await;
     let elapsed = t0.elapsed().as_secs_f64();
     // The banks' states as the hardware reports them, so the snapshot below cannot show a
@@ -148,6 +151,19 @@ async fn safe_state(app: &AppState) -> Vec<String> {
         .chain(axes.into_iter().filter_map(Result::err))
         .map(|e| e.to_string())
         .collect()
+}
+
+/// Disarms every camera concurrently, logging failures: a capture arms them before its pacing
+/// wait, so an armed camera must not outlive the e-stop even if the run's own end is slow.
+fn spawn_disarm_cameras(app: &AppState) {
+    let cameras: Vec<_> = app.rig.cameras.values().cloned().collect();
+    tokio::spawn(async move {
+        for r in join_all(cameras.iter().map(|c| c.set_armed(false))).await {
+            if let Err(e) = r {
+                tracing::error!("e-stop: {e}");
+            }
+        }
+    });
 }
 
 /// After aborting a run: once it has wound down (or after [`FOLLOW_UP_WAIT`]), put the rig in

@@ -339,6 +339,29 @@ async fn the_estop_stops_a_long_move_switches_everything_off_and_latches() {
     d.shutdown().await;
 }
 
+/// A capture arms its cameras before its pacing wait; the e-stop disarms them itself, without
+/// waiting for the aborted run's own end (here there is no run at all).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_estop_disarms_every_camera() {
+    let _turn = crate::grbl_peer::alongside();
+    let (d, _dir) = daemon().await;
+    let world = d.state.rig.world.clone().expect("the simulated rig");
+    for c in d.state.rig.cameras.values() {
+        c.set_armed(true).await.expect("arm");
+    }
+    assert_eq!(world.armed_cameras(), d.state.rig.cameras.len());
+    assert_eq!(world.armed_cameras(), 8);
+    let api = Api::operator(&d);
+    common::blocking(move || {
+        let report = api.ok("/api/estop", None);
+        assert!(report["errors"].as_array().unwrap().is_empty(), "{report}");
+        common::eventually(10, "every camera disarmed", || world.armed_cameras() == 0);
+        api.ok("/api/estop/reset", None);
+    })
+    .await;
+    d.shutdown().await;
+}
+
 /// Reads messages until one satisfies `pred` (or the guard deadline passes).
 async fn until<S>(ws: &mut S, what: &str, pred: impl Fn(&Value) -> bool) -> Value
 where
