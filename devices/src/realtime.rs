@@ -82,7 +82,9 @@ pub fn at_normal_priority<T>(f: impl FnOnce() -> T) -> T {
 }
 
 /// `tokio::task::spawn_blocking` with `f` at normal scheduling ([`at_normal_priority`]): the
-/// runtime's blocking threads are raised like its workers.
+/// runtime's blocking threads are raised like its workers. The one sanctioned caller of
+/// tokio's (`clippy.toml` refuses it elsewhere).
+#[allow(clippy::disallowed_methods)]
 pub fn spawn_blocking<F, R>(f: F) -> tokio::task::JoinHandle<R>
 where
     F: FnOnce() -> R + Send + 'static,

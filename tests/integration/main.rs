@@ -5,6 +5,10 @@
 //! Tests of different modules run side by side in the test threads. Each one keeps to its own
 //! temporary directories, ports chosen by the kernel and its own child processes; the
 //! real-firmware tests run one at a time through `grbl_peer::exclusive`.
+//!
+//! The tests' own runtimes are never real-time, so their blocking clients use tokio's
+//! `spawn_blocking` directly (`clippy.toml` steers the daemon's code to `realtime`'s).
+#![allow(clippy::disallowed_methods)]
 
 mod bad_input;
 mod calibration;
