@@ -24,9 +24,13 @@ pub enum RawCompression {
     /// Every raw frame with the fastest deflate (about 55 % of the raw size).
     Deflate,
     /// Every other raw frame stored uncompressed: for a writer behind the cameras. Deflate is
-    /// most of a frame's CPU, stored frames most of the disk's bytes; half and half keeps
-    /// both below their limits longest (`cargo bench --bench frame_pipeline`).
+    /// most of a frame's CPU, stored frames most of the disk's bytes; half and half spares
+    /// both (`cargo bench --bench frame_pipeline`).
     HalfStored,
+    /// Every raw frame stored uncompressed: for a writer far behind the cameras whose time
+    /// goes to encoding rather than to the disk (a stored frame takes about a third of a
+    /// deflated one's CPU and 1.8 times its bytes).
+    Stored,
 }
 
 impl RawCompression {
@@ -34,8 +38,27 @@ impl RawCompression {
     pub(crate) fn for_frame(self, i: usize) -> Deflate {
         match self {
             RawCompression::HalfStored if i % 2 == 1 => Deflate::Stored,
+            RawCompression::Stored => Deflate::Stored,
             _ => Deflate::Fastest,
         }
+    }
+}
+
+/// Where a batch's writing time went, summed over its files (wall time on the writer's
+/// threads): the writer compresses less when encoding, not the disk, holds it back.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct WriteTimes {
+    /// Encoding and hashing the files, seconds.
+    pub encode_s: f64,
+    /// Writing, fsyncing and renaming them, seconds.
+    pub write_s: f64,
+}
+
+impl WriteTimes {
+    /// True when the disk took longer than the encoding: storing frames uncompressed would
+    /// only add to the disk's work.
+    pub fn disk_bound(&self) -> bool {
+        self.write_s > self.encode_s
     }
 }
 
@@ -52,6 +75,8 @@ pub(crate) struct WrittenFrame {
     pub size_bytes: u64,
     /// The ground-truth images written beside it.
     pub ground_truth: Vec<WrittenGroundTruth>,
+    /// Where the frame file's own writing time went (ground truth not counted).
+    pub times: WriteTimes,
 }
 
 /// A ground-truth image written beside a frame (not yet indexed).
@@ -76,6 +101,7 @@ pub(crate) fn write_frame(
     f: &FrameToWrite,
     deflate: Deflate,
 ) -> Result<WrittenFrame> {
+    let started = std::time::Instant::now();
     let name = frame_file_name(&f.meta);
     let json = f
         .meta
@@ -101,7 +127,12 @@ pub(crate) fn write_frame(
         }
     };
     let sha256 = sha256_hex(&bytes);
+    let encoded = std::time::Instant::now();
     let path = write_atomic_uncached(frames_dir, &name, &bytes)?;
+    let times = WriteTimes {
+        encode_s: (encoded - started).as_secs_f64(),
+        write_s: encoded.elapsed().as_secs_f64(),
+    };
     let ground_truth = match &f.ground_truth {
         Some(truth) => write_ground_truth(frames_dir, &f.meta, truth, &json)?,
         None => Vec::new(),
@@ -113,6 +144,7 @@ pub(crate) fn write_frame(
         sha256,
         size_bytes: bytes.len() as u64,
         ground_truth,
+        times,
     })
 }
 

@@ -88,7 +88,7 @@ pub use frame_memory::{keep_frame_memory, release_frame_memory};
 pub use frame_meta::{
     FrameKind, FrameMeta, FramePixels, FrameToWrite, frame_file_name, ground_truth_file_name,
 };
-pub use frame_write::RawCompression;
+pub use frame_write::{RawCompression, WriteTimes};
 pub use hdr_merge::{HdrImage, merge_bracket};
 pub use index::{RunStatus, StepRecord, StoredFrame, StoredGroundTruth};
 pub use manifest::{Manifest, SimManifest};

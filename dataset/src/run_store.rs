@@ -26,7 +26,7 @@ use crate::checksum::sha256_hex;
 use crate::error::{Result, StorageError};
 
 use crate::frame_meta::{FrameKind, FrameToWrite, frame_file_name};
-use crate::frame_write::{RawCompression, WrittenFrame, write_frame, writer_pool};
+use crate::frame_write::{RawCompression, WriteTimes, WrittenFrame, write_frame, writer_pool};
 use crate::index::{
     Index, NewFrameRow, NewGroundTruthRow, RunStatus, StepRecord, StoredFrame, StoredGroundTruth,
 };
@@ -311,16 +311,17 @@ impl RunStore {
         &mut self,
         batch: Vec<(StepRecord, Vec<FrameToWrite>)>,
     ) -> Result<Vec<PathBuf>> {
-        self.commit_steps_with(batch, RawCompression::Deflate)
+        Ok(self.commit_steps_with(batch, RawCompression::Deflate)?.0)
     }
 
     /// [`RunStore::commit_steps`] with the raw frames' PNG compression given: the writer
-    /// stores some uncompressed while it is behind the cameras.
+    /// stores some uncompressed while it is behind the cameras. Also returns where the frame
+    /// files' writing time went, so the writer can tell encoding from the disk.
     pub fn commit_steps_with(
         &mut self,
         mut batch: Vec<(StepRecord, Vec<FrameToWrite>)>,
         compression: RawCompression,
-    ) -> Result<Vec<PathBuf>> {
+    ) -> Result<(Vec<PathBuf>, WriteTimes)> {
         // Raw samples go MSB-aligned into their PNG; the shift is recorded with the frame.
         for f in batch.iter_mut().flat_map(|(_, frames)| frames.iter_mut()) {
             f.meta.sample_shift = match f.meta.kind {
@@ -365,11 +366,19 @@ impl RunStore {
             .map(|((record, _), r)| (record, r.as_slice()))
             .collect();
         self.index.commit_steps(&steps)?;
-        Ok(written
+        let times = written
+            .iter()
+            .flatten()
+            .fold(WriteTimes::default(), |sum, w| WriteTimes {
+                encode_s: sum.encode_s + w.times.encode_s,
+                write_s: sum.write_s + w.times.write_s,
+            });
+        let paths = written
             .into_iter()
             .flatten()
             .flat_map(|w| std::iter::once(w.path).chain(w.ground_truth.into_iter().map(|g| g.path)))
-            .collect())
+            .collect();
+        Ok((paths, times))
     }
 
     /// Validates, encodes and durably writes the frames of `step` (files only, no index rows):

@@ -12,7 +12,7 @@ use super::capture::StepFrames;
 use super::events::Event;
 use crate::storage::{
     FramePixels, FrameToWrite, RawCompression, RunStatus, RunStore, StepRecord, StorageError,
-    merge_bracket,
+    WriteTimes, merge_bracket,
 };
 use crate::units::human_bytes;
 
@@ -173,6 +173,9 @@ fn writer_loop(
 ) {
     let mut frames_written = 0usize;
     let mut compression = RawCompression::Deflate;
+    // Where the last batch's writing time went: every frame is stored only while encoding,
+    // not the disk, holds the writer back.
+    let mut last_times = WriteTimes::default();
     let mut first_failure: Option<(usize, String)> = None;
     let mut pending: Option<Msg> = None;
     loop {
@@ -197,14 +200,18 @@ fn writer_loop(
                     continue;
                 }
                 let steps: Vec<usize> = batch.iter().map(|(r, _, _)| r.step).collect();
-                let chosen = compression_for(&budget);
+                let chosen = compression_for(&budget, last_times.disk_bound());
                 if chosen != compression {
                     tracing::info!(
                         step = steps[0],
+                        encode_s = last_times.encode_s,
+                        write_s = last_times.write_s,
                         "raw frames {}",
                         match chosen {
                             RawCompression::HalfStored =>
                                 "half stored uncompressed: the writer is behind the cameras",
+                            RawCompression::Stored =>
+                                "all stored uncompressed: the writer is far behind the cameras",
                             RawCompression::Deflate =>
                                 "all compressed again: the writer has caught up",
                         }
@@ -212,7 +219,8 @@ fn writer_loop(
                     compression = chosen;
                 }
                 match write_batch(&mut store, batch, reserve_bytes, compression) {
-                    Ok(files) => {
+                    Ok((files, times)) => {
+                        last_times = times;
                         frames_written += files.iter().sum::<usize>();
                         super::telemetry::frames_written(files.iter().sum());
                         for (step, n) in steps.into_iter().zip(files) {
@@ -250,15 +258,24 @@ fn writer_loop(
 /// Most steps journaled in one transaction.
 const MAX_BATCH: usize = 512;
 
-/// Frame data (MiB) in flight, this batch's included, above which raw frames are stored
-/// uncompressed: deflate takes about half the CPU of a frame's way to disk, and a writer
-/// that keeps compressing while behind the cameras would make the next capture late.
+/// Frame data (MiB) in flight, this batch's included, above which half the raw frames are
+/// stored uncompressed: deflate takes about half the CPU of a frame's way to disk, and a
+/// writer that keeps compressing while behind the cameras would make the next capture late.
 const STORE_ABOVE_MIB: usize = BUDGET_MIB as usize / 8;
 
-/// The compression for the next batch: the fastest deflate unless the writer is behind.
-fn compression_for(budget: &Semaphore) -> RawCompression {
+/// Frame data (MiB) in flight above which every raw frame is stored uncompressed, unless the
+/// disk is what holds the writer back: half stored did not let it catch up, and once the
+/// budget is full the next capture waits.
+const STORE_ALL_ABOVE_MIB: usize = BUDGET_MIB as usize / 4;
+
+/// The compression for the next batch: the fastest deflate unless the writer is behind; the
+/// further behind, the more frames stored, but never all of them while `disk_bound` (the last
+/// batch spent longer writing than encoding).
+fn compression_for(budget: &Semaphore, disk_bound: bool) -> RawCompression {
     let in_flight = (BUDGET_MIB as usize).saturating_sub(budget.available_permits());
-    if in_flight > STORE_ABOVE_MIB {
+    if in_flight > STORE_ALL_ABOVE_MIB && !disk_bound {
+        RawCompression::Stored
+    } else if in_flight > STORE_ABOVE_MIB {
         RawCompression::HalfStored
     } else {
         RawCompression::Deflate
@@ -266,13 +283,14 @@ fn compression_for(budget: &Semaphore) -> RawCompression {
 }
 
 /// Writes a batch of steps (frames first, then one journal transaction); returns the number
-/// of files per step, or the first step that failed and why.
+/// of files per step and where the frames' writing time went, or the first step that failed
+/// and why.
 fn write_batch(
     store: &mut RunStore,
     batch: Vec<(StepRecord, StepFrames, OwnedSemaphorePermit)>,
     reserve_bytes: u64,
     compression: RawCompression,
-) -> Result<Vec<usize>, (usize, String)> {
+) -> Result<(Vec<usize>, WriteTimes), (usize, String)> {
     let first = batch.first().map(|(r, _, _)| r.step).unwrap_or(0);
     let mut prepared = Vec::with_capacity(batch.len());
     let mut needed = 0u64;
@@ -313,10 +331,10 @@ fn write_batch(
         }
     }
     let counts = prepared.iter().map(|(_, f)| f.len()).collect();
-    store
+    let (_, times) = store
         .commit_steps_with(prepared, compression)
         .map_err(|e| (first, e.to_string()))?;
-    Ok(counts)
+    Ok((counts, times))
 }
 
 /// Turns a step's captured frames into the files to write, merging HDR brackets. Ground truth
@@ -362,18 +380,32 @@ mod tests {
     use super::*;
 
     #[test]
-    fn raw_frames_are_half_stored_only_while_the_writer_is_behind() {
+    fn raw_frames_are_stored_more_the_further_the_writer_is_behind() {
         let budget = Semaphore::new(BUDGET_MIB as usize);
-        assert_eq!(compression_for(&budget), RawCompression::Deflate);
+        let level = |disk_bound| compression_for(&budget, disk_bound);
+        assert_eq!(level(false), RawCompression::Deflate);
+        assert_eq!(level(true), RawCompression::Deflate);
         budget.forget_permits(STORE_ABOVE_MIB);
+        assert_eq!(level(false), RawCompression::Deflate, "at the first mark");
+        budget.forget_permits(1);
+        assert_eq!(level(false), RawCompression::HalfStored);
+        budget.forget_permits(STORE_ALL_ABOVE_MIB - STORE_ABOVE_MIB - 1);
         assert_eq!(
-            compression_for(&budget),
-            RawCompression::Deflate,
-            "at the mark"
+            level(false),
+            RawCompression::HalfStored,
+            "at the second mark"
         );
         budget.forget_permits(1);
-        assert_eq!(compression_for(&budget), RawCompression::HalfStored);
-        budget.add_permits(STORE_ABOVE_MIB + 1);
-        assert_eq!(compression_for(&budget), RawCompression::Deflate);
+        assert_eq!(level(false), RawCompression::Stored);
+        assert_eq!(
+            level(true),
+            RawCompression::HalfStored,
+            "a writer held back by the disk never stores every frame"
+        );
+        budget.forget_permits(budget.available_permits());
+        assert_eq!(level(false), RawCompression::Stored, "budget full");
+        assert_eq!(level(true), RawCompression::HalfStored, "budget full");
+        budget.add_permits(BUDGET_MIB as usize);
+        assert_eq!(level(false), RawCompression::Deflate, "caught up");
     }
 }

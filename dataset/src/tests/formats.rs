@@ -1,4 +1,4 @@
-//! What the frames and the index hold on disk: PNG, half-stored PNG, EXR, old datasets, the fixture's placement.
+//! What the frames and the index hold on disk: PNG, stored PNG, EXR, old datasets, the fixture's placement.
 
 use super::*;
 
@@ -42,10 +42,34 @@ fn png_round_trip_and_identical_bytes_without_wall_time() -> TestResult {
     Ok(())
 }
 
-/// A writer behind the cameras stores every other raw frame uncompressed: both kinds are PNG
-/// that decode to the same DN and are indexed with their own size and hash.
+/// A writer behind the cameras stores some raw frames uncompressed (every other, or all): both
+/// kinds are PNG that decode to the same DN and are indexed with their own size and hash, and
+/// the commit says where its time went.
 #[test]
-fn half_stored_frames_decode_alike() -> TestResult {
+fn stored_frames_decode_alike_at_every_compression() -> TestResult {
+    for (compression, expected) in [
+        (RawCompression::Deflate, (0, 4)),
+        (RawCompression::HalfStored, (2, 2)),
+        (RawCompression::Stored, (4, 0)),
+    ] {
+        let (stored, deflated, times) = stored_and_deflated(compression)?;
+        assert_eq!(
+            (stored, deflated),
+            expected,
+            "{compression:?}: raw frames (stored, deflated)"
+        );
+        for t in [times.encode_s, times.write_s] {
+            assert!(t.is_finite() && t > 0.0, "{compression:?}: {times:?}");
+        }
+    }
+    Ok(())
+}
+
+/// Commits step 1's frames (four raw, made 64×48) with `compression`; counts the raw frames
+/// stored and deflated after checking each file against its row and its DN.
+fn stored_and_deflated(
+    compression: RawCompression,
+) -> Result<(usize, usize, WriteTimes), Box<dyn std::error::Error>> {
     let tmp = tempfile::tempdir()?;
     let mut store = RunStore::create(tmp.path(), manifest(), &plan())?;
     let dir = store.dir().to_path_buf();
@@ -66,7 +90,7 @@ fn half_stored_frames_decode_alike() -> TestResult {
             FramePixels::Hdr(_) => None,
         })
         .collect();
-    store.commit_steps_with(vec![(record(1, 9.5), frames)], RawCompression::HalfStored)?;
+    let (_, times) = store.commit_steps_with(vec![(record(1, 9.5), frames)], compression)?;
     let (mut stored, mut deflated) = (0, 0);
     for row in store.frames(Some(1))? {
         let bytes = fs::read(dir.join(&row.path))?;
@@ -92,8 +116,7 @@ fn half_stored_frames_decode_alike() -> TestResult {
             deflated += 1;
         }
     }
-    assert_eq!((stored, deflated), (2, 2));
-    Ok(())
+    Ok((stored, deflated, times))
 }
 
 /// A dataset written before MSB alignment and ground truth (index schema 1, PNGs with the DN
