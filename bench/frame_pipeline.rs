@@ -288,7 +288,12 @@ fn main() {
             .parse::<u8>()
             .ok()
             .filter(|p| (1..=stagehand_devices::realtime::MAX_PRIORITY).contains(p))
-            .unwrap_or_else(|| panic!("{REALTIME_ENV}={v}: expected a priority from 1 to 99"));
+            .unwrap_or_else(|| {
+                panic!(
+                    "{REALTIME_ENV}={v}: expected a priority from 1 to {}",
+                    stagehand_devices::realtime::MAX_PRIORITY
+                )
+            });
         stagehand_devices::realtime::set_priority(priority);
     }
     let args: Vec<String> = std::env::args()
