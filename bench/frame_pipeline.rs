@@ -16,8 +16,10 @@
 //! Run: `cargo bench --bench frame_pipeline -- [SECONDS [RATES [WxH]]]`, e.g.
 //! `-- 600 15` (the ten minutes at the seed's 15 Hz) or `-- 60 7.5,15,30`.
 //! Prints one JSON object per rate. `STAGEHAND_FRAME_MEMORY=default` leaves the allocator's
-//! settings alone (see `stagehand_dataset::frame_memory`); `STAGEHAND_REALTIME_PRIORITY=N`
-//! runs the runtime's threads at `SCHED_FIFO` N, as `stagehand --realtime-priority N` does.
+//! settings alone (see `stagehand_dataset::frame_memory`). The runtime's threads run at
+//! `SCHED_FIFO` 10 where the system allows it, as `stagehand` does by default;
+//! `STAGEHAND_REALTIME_PRIORITY=N` (or `off`) runs them as `stagehand --realtime-priority N`
+//! (or `off`) does.
 
 // Shared with the other benchmarks; this one runs on its own real-time runtime, not `support::run`.
 mod stats;
@@ -271,7 +273,8 @@ fn measure(seconds: f64, rate: f64, (w, h): (u32, u32), out: &Path) -> Measured 
 /// Set to `default` to leave glibc's allocator settings as they are, for the side-by-side
 /// figure; otherwise the benchmark keeps frame memory as `stagehand` does at start.
 const ALLOCATOR_ENV: &str = "STAGEHAND_FRAME_MEMORY";
-/// Set to a priority (1–99) to run as `stagehand --realtime-priority` does.
+/// A priority (1–99) or `off`, to run as `stagehand --realtime-priority` does; unset, the
+/// default priority, as `stagehand` without the option.
 const REALTIME_ENV: &str = "STAGEHAND_REALTIME_PRIORITY";
 
 fn main() {
@@ -283,18 +286,22 @@ fn main() {
     } else {
         "frame memory not kept (not glibc)"
     };
-    if let Ok(v) = std::env::var(REALTIME_ENV) {
-        let priority = v
-            .parse::<u8>()
-            .ok()
-            .filter(|p| (1..=stagehand_devices::realtime::MAX_PRIORITY).contains(p))
-            .unwrap_or_else(|| {
-                panic!(
-                    "{REALTIME_ENV}={v}: expected a priority from 1 to {}",
-                    stagehand_devices::realtime::MAX_PRIORITY
-                )
-            });
-        stagehand_devices::realtime::set_priority(priority);
+    match std::env::var(REALTIME_ENV) {
+        Err(_) => stagehand_devices::realtime::set_default_priority(),
+        Ok(v) if v == "off" => {}
+        Ok(v) => {
+            let priority = v
+                .parse::<u8>()
+                .ok()
+                .filter(|p| (1..=stagehand_devices::realtime::MAX_PRIORITY).contains(p))
+                .unwrap_or_else(|| {
+                    panic!(
+                        "{REALTIME_ENV}={v}: expected a priority from 1 to {}, or `off`",
+                        stagehand_devices::realtime::MAX_PRIORITY
+                    )
+                });
+            stagehand_devices::realtime::set_priority(priority);
+        }
     }
     let args: Vec<String> = std::env::args()
         .skip(1)

@@ -1,4 +1,5 @@
-//! Real-time scheduling for the threads that drive the rig (opt-in: `--realtime-priority`).
+//! Real-time scheduling for the threads that drive the rig: `stagehand` asks for
+//! [`DEFAULT_PRIORITY`] unless told otherwise (`--realtime-priority N` or `off`).
 //!
 //! With the frame writer keeping both cores of a small PC busy, the kernel lets a running
 //! writer thread finish its time slice before the capture's woken thread runs, so a paced
@@ -18,9 +19,16 @@ use std::sync::atomic::{AtomicBool, Ordering};
 /// Highest `SCHED_FIFO` priority Linux accepts.
 pub const MAX_PRIORITY: u8 = 99;
 
+/// The `SCHED_FIFO` priority `stagehand` asks for when no `--realtime-priority` is given: low
+/// among real-time priorities (the kernel's own interrupt threads run at 50), above every
+/// normal thread.
+pub const DEFAULT_PRIORITY: u8 = 10;
+
 static PRIORITY: OnceLock<u8> = OnceLock::new();
-/// Set at the first refusal to raise a thread (which is logged then).
-static REFUSED: AtomicBool = AtomicBool::new(false);
+/// Whether the priority was asked for (`--realtime-priority N`) rather than the default.
+static ASKED: AtomicBool = AtomicBool::new(false);
+/// The system's answer at the first refusal to raise a thread (which is logged then).
+static REFUSED: OnceLock<String> = OnceLock::new();
 
 thread_local! {
     /// The `SCHED_FIFO` priority this thread was raised to, if it was.
@@ -28,9 +36,18 @@ thread_local! {
 }
 
 /// Sets the `SCHED_FIFO` priority (1..=[`MAX_PRIORITY`]) that runtime threads started from now
-/// on ask for; the first call wins. Call it before building the runtime.
+/// on ask for, as asked for by the user (a refusal is a warning); the first call wins. Call it
+/// before building the runtime.
 pub fn set_priority(priority: u8) {
-    let _ = PRIORITY.set(priority.clamp(1, MAX_PRIORITY));
+    if PRIORITY.set(priority.clamp(1, MAX_PRIORITY)).is_ok() {
+        ASKED.store(true, Ordering::Relaxed);
+    }
+}
+
+/// Sets [`DEFAULT_PRIORITY`] for runtime threads started from now on, where the system allows
+/// it: a refusal is logged at info level and the threads keep normal scheduling.
+pub fn set_default_priority() {
+    let _ = PRIORITY.set(DEFAULT_PRIORITY);
 }
 
 /// The priority set with [`set_priority`], if any.
@@ -40,7 +57,30 @@ pub fn priority() -> Option<u8> {
 
 /// Whether the system refused to raise a thread (logged once, by [`raise_this_thread`]).
 pub fn refused() -> bool {
-    REFUSED.load(Ordering::Relaxed)
+    REFUSED.get().is_some()
+}
+
+/// One line on how the rig's threads are scheduled, for a startup banner: real-time, normal
+/// because no priority was set (`--realtime-priority off`), or normal because the system
+/// refused, with what to grant.
+pub fn describe() -> String {
+    match (priority(), REFUSED.get()) {
+        (None, _) => "normal (--realtime-priority off)".to_string(),
+        (Some(p), None) => format!("real-time for the rig's threads (SCHED_FIFO {p})"),
+        (Some(p), Some(e)) => format!(
+            "normal: SCHED_FIFO {p} refused ({e}); paced triggers may come late while frames \
+             are written at full rate. {}",
+            what_to_grant(p)
+        ),
+    }
+}
+
+/// What lets a process raise its threads to `priority`.
+fn what_to_grant(priority: u8) -> String {
+    format!(
+        "Give the process CAP_SYS_NICE or an RLIMIT_RTPRIO of at least {priority} \
+         (systemd: LimitRTPRIO={priority} and RestrictRealtime=false)"
+    )
 }
 
 /// For a runtime's `on_thread_start`: puts the calling thread at the `SCHED_FIFO` priority set
@@ -50,11 +90,22 @@ pub fn raise_this_thread() {
     let Some(priority) = priority() else { return };
     match set_fifo(priority) {
         Ok(()) => RAISED.set(Some(priority)),
-        Err(e) if !REFUSED.swap(true, Ordering::Relaxed) => tracing::warn!(
-            "--realtime-priority {priority}: the runtime's threads keep normal scheduling: {e}; \
-             give the process CAP_SYS_NICE or an RLIMIT_RTPRIO of at least {priority} \
-             (systemd: AmbientCapabilities=CAP_SYS_NICE or LimitRTPRIO={priority})"
-        ),
+        Err(e) if REFUSED.set(e.to_string()).is_ok() => {
+            if ASKED.load(Ordering::Relaxed) {
+                tracing::warn!(
+                    "--realtime-priority {priority}: the runtime's threads keep normal \
+                     scheduling: {e}. {}",
+                    what_to_grant(priority)
+                );
+            } else {
+                tracing::info!(
+                    "the runtime's threads keep normal scheduling (SCHED_FIFO {priority} \
+                     refused: {e}); paced triggers may come late under load. {}, or pass \
+                     --realtime-priority off",
+                    what_to_grant(priority)
+                );
+            }
+        }
         Err(_) => {}
     }
 }

@@ -32,11 +32,32 @@ use crate::session::{self, DEFAULT_RESERVE_BYTES, SessionError, Wiring};
 struct Cli {
     #[command(subcommand)]
     command: Command,
-    /// Run the rig's threads at this real-time priority (Linux SCHED_FIFO, 1-99) so that paced
-    /// triggers fire on time while the frame writer keeps the cores busy; needs CAP_SYS_NICE
-    /// or an RLIMIT_RTPRIO at least this high (README: "Installing on a lab PC").
-    #[arg(long, global = true, value_name = "PRIORITY", value_parser = clap::value_parser!(u8).range(1..=i64::from(stagehand_devices::realtime::MAX_PRIORITY)))]
-    realtime_priority: Option<u8>,
+    /// Real-time priority of the rig's threads (Linux SCHED_FIFO, 1-99; default 10, where the
+    /// system allows it), so that paced triggers fire on time while the frame writer keeps the
+    /// cores busy; `off` keeps normal scheduling. Needs CAP_SYS_NICE or an RLIMIT_RTPRIO at
+    /// least this high (README: "Installing on a lab PC").
+    #[arg(long, global = true, value_name = "PRIORITY|off", value_parser = parse_realtime)]
+    realtime_priority: Option<Realtime>,
+}
+
+/// `--realtime-priority`: a `SCHED_FIFO` priority, or `off`.
+#[derive(Clone, Copy, Debug)]
+enum Realtime {
+    Priority(u8),
+    Off,
+}
+
+fn parse_realtime(value: &str) -> Result<Realtime, String> {
+    use stagehand_devices::realtime::MAX_PRIORITY;
+    if value == "off" {
+        return Ok(Realtime::Off);
+    }
+    value
+        .parse::<u8>()
+        .ok()
+        .filter(|p| (1..=MAX_PRIORITY).contains(p))
+        .map(Realtime::Priority)
+        .ok_or_else(|| format!("expected a priority from 1 to {MAX_PRIORITY}, or `off`"))
 }
 
 #[derive(Subcommand, Debug)]
@@ -172,8 +193,10 @@ pub fn main() -> i32 {
             return code;
         }
     };
-    if let Some(priority) = cli.realtime_priority {
-        stagehand_devices::realtime::set_priority(priority);
+    match cli.realtime_priority {
+        None => stagehand_devices::realtime::set_default_priority(),
+        Some(Realtime::Priority(p)) => stagehand_devices::realtime::set_priority(p),
+        Some(Realtime::Off) => {}
     }
     let _ = tracing_subscriber::fmt()
         .with_env_filter(

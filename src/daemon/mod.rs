@@ -301,6 +301,7 @@ pub fn serve(opts: ServeOptions) -> Result<(), DaemonError> {
             );
         }
         eprintln!("  API:        http://{addr}/api/  (OpenAPI: /openapi.json, Swagger UI: /docs/)");
+        eprintln!("  scheduling: {}", stagehand_devices::realtime::describe());
         eprintln!(
             "  tokens:     {}{}",
             daemon.tokens_path.display(),

@@ -155,8 +155,10 @@ fn realtime_priority_out_of_range() {
     let seq = root().join("sequences/quickstart.rhai");
     for bad in ["0", "100", "high"] {
         let o = stagehand(&["plan", seq.to_str().unwrap(), "--realtime-priority", bad]);
-        assert_bad(&o, &["--realtime-priority", bad]);
+        assert_bad(&o, &["--realtime-priority", bad, "1 to 99, or `off`"]);
     }
+    let o = stagehand(&["plan", seq.to_str().unwrap(), "--realtime-priority", "off"]);
+    assert!(o.status.success(), "`off` is accepted: {}", stderr(&o));
 }
 
 #[test]
