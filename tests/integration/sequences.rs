@@ -6,8 +6,13 @@ use crate::common;
 use common::*;
 use stagehand::storage::RunStatus;
 
-/// Runs `seq` and checks the dataset against the plan; returns the run directory.
-fn check_sequence(seq: &str, rig: &str, overrides: &[(&str, &str)]) -> std::path::PathBuf {
+/// Runs `seq` and checks the dataset against the plan; returns the run directory and the
+/// temporary directory that holds it (removed when dropped).
+fn check_sequence(
+    seq: &str,
+    rig: &str,
+    overrides: &[(&str, &str)],
+) -> (tempfile::TempDir, std::path::PathBuf) {
     let tmp = tempfile::tempdir().unwrap();
     let rig_src = small_rig(rig, 48, 36);
     let prepared = stagehand::session::prepare(script(seq), &sets(overrides), rig_src.clone())
@@ -98,14 +103,13 @@ fn check_sequence(seq: &str, rig: &str, overrides: &[(&str, &str)]) -> std::path
             .contains("capture")
     );
     assert!(manifest["rig_toml"].as_str().unwrap().contains("[rig]"));
-    let _keep = tmp.keep();
-    out.dir
+    (tmp, out.dir)
 }
 
 #[test]
 fn quickstart() {
     let _turn = crate::grbl_peer::alongside();
-    let dir = check_sequence("quickstart.rhai", "lightstage", &[]);
+    let (_tmp, dir) = check_sequence("quickstart.rhai", "lightstage", &[]);
     let conn = db(&dir);
     // The laser sweep frames record the laser on, armed, with its tilt.
     assert!(
@@ -168,7 +172,7 @@ fn quasi_homogeneous_scaled_down() {
 #[test]
 fn reflectometer() {
     let _turn = crate::grbl_peer::alongside();
-    let dir = check_sequence("reflectometer.rhai", "reflectometer", &[("positions", "4")]);
+    let (_tmp, dir) = check_sequence("reflectometer.rhai", "reflectometer", &[("positions", "4")]);
     let conn = db(&dir);
     assert!(
         count(&conn, "SELECT count(DISTINCT cart_mm) FROM frames") >= 3,
@@ -176,7 +180,7 @@ fn reflectometer() {
     );
     // A second sweep with the sample turned 90°: the frames record the turn (the simulator
     // renders the sample so placed), the first sweep's do not.
-    let dir = check_sequence(
+    let (_tmp, dir) = check_sequence(
         "reflectometer.rhai",
         "reflectometer",
         &[("positions", "4"), ("turned", "true")],
@@ -196,7 +200,7 @@ fn reflectometer() {
 #[test]
 fn calibration_checkerboard() {
     let _turn = crate::grbl_peer::alongside();
-    let dir = check_sequence(
+    let (_tmp, dir) = check_sequence(
         "calibration_checkerboard.rhai",
         "lightstage",
         &[("placements", "2")],
@@ -212,7 +216,7 @@ fn calibration_checkerboard() {
 #[test]
 fn calibration_colorchecker() {
     let _turn = crate::grbl_peer::alongside();
-    let dir = check_sequence(
+    let (_tmp, dir) = check_sequence(
         "calibration_colorchecker.rhai",
         "lightstage",
         &[("lamps", "2")],

@@ -19,7 +19,6 @@ pub(super) const SECRET: &str = "TOP-SECRET-daemon-frames-test";
 
 /// A data directory with one real run and one tampered copy of it.
 pub(super) struct Dataset {
-    _tmp: tempfile::TempDir,
     pub(super) data: PathBuf,
     pub(super) run_id: String,
     pub(super) run_dir: PathBuf,
@@ -44,8 +43,16 @@ pub(super) fn dataset() -> &'static Dataset {
 }
 
 fn make_dataset() -> Dataset {
-    let tmp = tempfile::tempdir().expect("temp dir");
-    let data = tmp.path().join("data");
+    // A static is never dropped, so a temporary directory would outlive every test run: the
+    // dataset lives in one fixed directory under the build's test scratch space instead,
+    // replaced by each run.
+    let root = Path::new(env!("CARGO_TARGET_TMPDIR")).join("daemon_frames-dataset");
+    match std::fs::remove_dir_all(&root) {
+        Ok(()) => {}
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        Err(e) => panic!("cannot clear {}: {e}", root.display()),
+    }
+    let data = root.join("data");
     let runs = data.join("runs");
     std::fs::create_dir_all(&runs).expect("runs dir");
     let prepared = session::prepare(
@@ -82,7 +89,7 @@ fn make_dataset() -> Dataset {
     stagehand::daemon::auth::Tokens::load_or_create(&data).expect("tokens");
 
     // Secrets outside the run, and a tampered copy of the run pointing at them.
-    std::fs::write(tmp.path().join("secret.txt"), SECRET).expect("secret");
+    std::fs::write(root.join("secret.txt"), SECRET).expect("secret");
     std::fs::write(runs.join("secret.txt"), SECRET).expect("secret in runs");
     let evil_id = "evil-run".to_string();
     let evil = runs.join(&evil_id);
@@ -96,7 +103,7 @@ fn make_dataset() -> Dataset {
                 .collect::<Result<_, _>>()
         })
         .expect("frame ids");
-    let outside = tmp.path().join("secret.txt");
+    let outside = root.join("secret.txt");
     let mut evil_frames = Vec::new();
     for ((id, path), (how, new_path)) in ids.iter().zip([
         ("absolute path", outside.display().to_string()),
@@ -121,12 +128,11 @@ fn make_dataset() -> Dataset {
     }
     drop(conn);
     // A run directory that is a symlink to a run elsewhere is not a run.
-    let elsewhere = tmp.path().join("elsewhere");
+    let elsewhere = root.join("elsewhere");
     copy_dir(&run_dir, &elsewhere);
     std::os::unix::fs::symlink(&elsewhere, runs.join("linked-run")).expect("link run");
     let (damaged_id, damaged_frames) = damage_a_copy(&run_dir, &runs);
     Dataset {
-        _tmp: tmp,
         data,
         run_id,
         run_dir,
