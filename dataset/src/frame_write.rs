@@ -3,6 +3,7 @@
 //! low-priority pool that encodes, hashes, writes and fsyncs them.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use rayon::prelude::*;
 
@@ -94,38 +95,73 @@ pub(crate) struct WrittenGroundTruth {
     pub channels: Vec<String>,
 }
 
-/// Encodes one frame (its ground truth beside it) and writes it durably into `frames_dir`.
+/// One frame of a batch for the writer's pool: its metadata, and the pixels and ground truth
+/// it owns, so they are freed as soon as its files are written.
+pub(crate) struct FrameJob<'a> {
+    /// Index of its step in the batch.
+    pub step: usize,
+    /// Index of the frame in its step.
+    pub position: usize,
+    pub meta: &'a FrameMeta,
+    pub pixels: FramePixels,
+    pub ground_truth: Option<Arc<GroundTruthData>>,
+}
+
+impl<'a> FrameJob<'a> {
+    /// Takes the pixels and ground truth out of `f` (its pixels left empty) for a job.
+    pub(crate) fn take(step: usize, position: usize, f: &'a mut FrameToWrite) -> Self {
+        let FrameToWrite {
+            meta,
+            pixels,
+            ground_truth,
+        } = f;
+        FrameJob {
+            step,
+            position,
+            meta,
+            pixels: std::mem::replace(pixels, FramePixels::Raw(Vec::new())),
+            ground_truth: ground_truth.take(),
+        }
+    }
+}
+
+/// Encodes one frame (its ground truth beside it) and writes it durably into `frames_dir`;
+/// its pixels are freed once encoded, its ground truth once written.
 pub(crate) fn write_frame(
     frames_dir: &Path,
-    position: usize,
-    f: &FrameToWrite,
+    job: FrameJob<'_>,
     deflate: Deflate,
 ) -> Result<WrittenFrame> {
+    let FrameJob {
+        position,
+        meta,
+        pixels,
+        ground_truth,
+        ..
+    } = job;
     let started = std::time::Instant::now();
-    let name = frame_file_name(&f.meta);
-    let json = f
-        .meta
-        .embedded_json()
-        .map_err(|source| StorageError::Json {
-            op: "encode",
-            path: frames_dir.join(&name),
-            source,
-        })?;
-    let bytes = match &f.pixels {
+    let name = frame_file_name(meta);
+    let json = meta.embedded_json().map_err(|source| StorageError::Json {
+        op: "encode",
+        path: frames_dir.join(&name),
+        source,
+    })?;
+    let bytes = match &pixels {
         FramePixels::Raw(px) => encode_png16_with(
             &name,
-            f.meta.width,
-            f.meta.height,
+            meta.width,
+            meta.height,
             px,
-            f.meta.bit_depth,
+            meta.bit_depth,
             &json,
             deflate,
         )?,
         FramePixels::Hdr(px) => {
-            let (w, h) = (f.meta.width, f.meta.height);
+            let (w, h) = (meta.width, meta.height);
             encode_exr_with(&name, w, h, px, &json, HDR_FRAME_COMPRESSION)?
         }
     };
+    drop(pixels);
     let sha256 = sha256_hex(&bytes);
     let encoded = std::time::Instant::now();
     let path = write_atomic_uncached(frames_dir, &name, &bytes)?;
@@ -133,8 +169,8 @@ pub(crate) fn write_frame(
         encode_s: (encoded - started).as_secs_f64(),
         write_s: encoded.elapsed().as_secs_f64(),
     };
-    let ground_truth = match &f.ground_truth {
-        Some(truth) => write_ground_truth(frames_dir, &f.meta, truth, &json)?,
+    let ground_truth = match ground_truth {
+        Some(truth) => write_ground_truth(frames_dir, meta, &truth, &json)?,
         None => Vec::new(),
     };
     Ok(WrittenFrame {

@@ -18,6 +18,7 @@ use std::ffi::CString;
 use std::fs::{self, File, OpenOptions};
 use std::os::unix::ffi::OsStrExt;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use rayon::prelude::*;
 
@@ -26,7 +27,9 @@ use crate::checksum::sha256_hex;
 use crate::error::{Result, StorageError};
 
 use crate::frame_meta::{FrameKind, FrameToWrite, frame_file_name};
-use crate::frame_write::{RawCompression, WriteTimes, WrittenFrame, write_frame, writer_pool};
+use crate::frame_write::{
+    FrameJob, RawCompression, WriteTimes, WrittenFrame, write_frame, writer_pool,
+};
 use crate::index::{
     Index, NewFrameRow, NewGroundTruthRow, RunStatus, StepRecord, StoredFrame, StoredGroundTruth,
 };
@@ -311,16 +314,22 @@ impl RunStore {
         &mut self,
         batch: Vec<(StepRecord, Vec<FrameToWrite>)>,
     ) -> Result<Vec<PathBuf>> {
-        Ok(self.commit_steps_with(batch, RawCompression::Deflate)?.0)
+        Ok(self
+            .commit_steps_with(batch, RawCompression::Deflate, &|_| {})?
+            .0)
     }
 
     /// [`RunStore::commit_steps`] with the raw frames' PNG compression given: the writer
-    /// stores some uncompressed while it is behind the cameras. Also returns where the frame
-    /// files' writing time went, so the writer can tell encoding from the disk.
+    /// stores some uncompressed while it is behind the cameras. Calls `on_step_written(i)`
+    /// once the files of the batch's `i`-th step are written and its frames' pixels freed
+    /// (before they are indexed), so the writer can take in more frames while the rest of the
+    /// batch is written. Also returns where the frame files' writing time went, so the writer
+    /// can tell encoding from the disk.
     pub fn commit_steps_with(
         &mut self,
         mut batch: Vec<(StepRecord, Vec<FrameToWrite>)>,
         compression: RawCompression,
+        on_step_written: &(dyn Fn(usize) + Sync),
     ) -> Result<(Vec<PathBuf>, WriteTimes)> {
         // Raw samples go MSB-aligned into their PNG; the shift is recorded with the frame.
         for f in batch.iter_mut().flat_map(|(_, frames)| frames.iter_mut()) {
@@ -329,11 +338,11 @@ impl RunStore {
                 FrameKind::Hdr => 0,
             };
         }
-        let steps: Vec<(usize, &[FrameToWrite])> = batch
-            .iter()
-            .map(|(record, frames)| (record.step, frames.as_slice()))
+        let steps = batch
+            .iter_mut()
+            .map(|(record, frames)| (record.step, frames.as_mut_slice()))
             .collect();
-        let written = self.write_steps(&steps, compression)?;
+        let written = self.write_steps(steps, compression, on_step_written)?;
         let rows: Vec<Vec<NewFrameRow<'_>>> = batch
             .iter()
             .zip(&written)
@@ -389,33 +398,58 @@ impl RunStore {
         step: usize,
         frames: &[FrameToWrite],
     ) -> Result<Vec<WrittenFrame>> {
-        let mut written = self.write_steps(&[(step, frames)], RawCompression::Deflate)?;
+        let mut frames = frames.to_vec();
+        let mut written =
+            self.write_steps(vec![(step, &mut frames)], RawCompression::Deflate, &|_| {})?;
         Ok(written.pop().unwrap_or_default())
     }
 
     /// Validates the frames of every step, then encodes and writes them all at once on the
-    /// writer's pool, and fsyncs `frames/` once: the files of a batch, per step.
+    /// writer's pool, and fsyncs `frames/` once: the files of a batch, per step. Each frame's
+    /// pixels are taken (left empty) and freed once encoded; `on_step_written(i)` is called
+    /// when the `i`-th step's files are all written.
     fn write_steps(
         &self,
-        steps: &[(usize, &[FrameToWrite])],
+        steps: Vec<(usize, &mut [FrameToWrite])>,
         compression: RawCompression,
+        on_step_written: &(dyn Fn(usize) + Sync),
     ) -> Result<Vec<Vec<WrittenFrame>>> {
-        for &(step, frames) in steps {
-            self.validate_frames(step, frames)?;
+        for (step, frames) in &steps {
+            self.validate_frames(*step, frames)?;
         }
         let frames_dir = &self.frames_dir;
-        let jobs: Vec<(usize, usize, &FrameToWrite)> = steps
+        let remaining: Vec<AtomicUsize> = steps
             .iter()
-            .enumerate()
-            .flat_map(|(s, (_, frames))| frames.iter().enumerate().map(move |(p, f)| (s, p, f)))
+            .map(|(_, frames)| AtomicUsize::new(frames.len()))
             .collect();
+        let step_count = steps.len();
+        let jobs: Vec<FrameJob<'_>> = steps
+            .into_iter()
+            .enumerate()
+            .flat_map(|(s, (_, frames))| {
+                frames
+                    .iter_mut()
+                    .enumerate()
+                    .map(move |(p, f)| FrameJob::take(s, p, f))
+            })
+            .collect();
+        for (s, left) in remaining.iter().enumerate() {
+            if left.load(Ordering::Acquire) == 0 {
+                on_step_written(s);
+            }
+        }
         // Files are fsynced one by one inside the jobs: the pool has more threads than cores,
         // so one thread's fsync does not leave its core idle while frames wait to be encoded.
         let write_all = || {
-            jobs.par_iter()
+            jobs.into_par_iter()
                 .enumerate()
-                .map(|(i, &(_, position, f))| {
-                    write_frame(frames_dir, position, f, compression.for_frame(i))
+                .map(|(i, job)| {
+                    let s = job.step;
+                    let file = write_frame(frames_dir, job, compression.for_frame(i))?;
+                    if remaining[s].fetch_sub(1, Ordering::AcqRel) == 1 {
+                        on_step_written(s);
+                    }
+                    Ok((s, file))
                 })
                 .collect::<Result<Vec<_>>>()
         };
@@ -424,9 +458,9 @@ impl RunStore {
             None => write_all(),
         }?;
         fsync_dir(frames_dir)?;
-        let mut written: Vec<Vec<WrittenFrame>> = steps.iter().map(|_| Vec::new()).collect();
-        for ((s, _, _), file) in jobs.iter().zip(files) {
-            written[*s].push(file);
+        let mut written: Vec<Vec<WrittenFrame>> = (0..step_count).map(|_| Vec::new()).collect();
+        for (s, file) in files {
+            written[s].push(file);
         }
         Ok(written)
     }

@@ -294,10 +294,11 @@ fn write_batch(
     let first = batch.first().map(|(r, _, _)| r.step).unwrap_or(0);
     let mut prepared = Vec::with_capacity(batch.len());
     let mut needed = 0u64;
-    // Held until the batch is on disk, so the budget bounds memory truly in flight.
+    // A step's permit is held until its frames are written and their pixels freed, so the
+    // budget bounds memory truly in flight, while the cameras go on as soon as a step is out.
     let mut permits = Vec::with_capacity(batch.len());
     for (record, frames, permit) in batch {
-        permits.push(permit);
+        permits.push(Mutex::new(Some(permit)));
         let step = record.step;
         let out = prepare_step(frames).map_err(|e| (step, e.to_string()))?;
         needed += out
@@ -332,7 +333,11 @@ fn write_batch(
     }
     let counts = prepared.iter().map(|(_, f)| f.len()).collect();
     let (_, times) = store
-        .commit_steps_with(prepared, compression)
+        .commit_steps_with(prepared, compression, &|i| {
+            if let Some(permit) = permits.get(i) {
+                drop(permit.lock().unwrap_or_else(|p| p.into_inner()).take());
+            }
+        })
         .map_err(|e| (first, e.to_string()))?;
     Ok((counts, times))
 }

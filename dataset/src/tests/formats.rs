@@ -90,7 +90,8 @@ fn stored_and_deflated(
             FramePixels::Hdr(_) => None,
         })
         .collect();
-    let (_, times) = store.commit_steps_with(vec![(record(1, 9.5), frames)], compression)?;
+    let (_, times) =
+        store.commit_steps_with(vec![(record(1, 9.5), frames)], compression, &|_| {})?;
     let (mut stored, mut deflated) = (0, 0);
     for row in store.frames(Some(1))? {
         let bytes = fs::read(dir.join(&row.path))?;

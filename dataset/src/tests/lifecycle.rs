@@ -246,3 +246,63 @@ fn inconsistent_commits_are_refused() -> TestResult {
     assert_eq!(frame_row_count(&store)?, 0);
     Ok(())
 }
+
+/// The writer hears of each step of a batch once that step's files are written, with its
+/// frames' pixels and ground truth already freed, so it can take in the next frames while the
+/// rest of the batch is written; a frameless step is reported at once. One call per step.
+#[test]
+fn each_step_of_a_batch_is_reported_once_its_files_are_written() -> TestResult {
+    use crate::frame_meta::ground_truth_file_name;
+    use stagehand_devices::ground_truth::{GroundTruthData, GroundTruthPlane};
+    use std::sync::{Arc, Mutex};
+
+    let tmp = tempfile::tempdir()?;
+    let mut store = RunStore::create(tmp.path(), manifest(), &plan())?;
+    let frames_dir = store.dir().join(crate::layout::FRAMES_DIR);
+    let mut step1 = step1_frames();
+    let (w, h) = (step1[0].meta.width, step1[0].meta.height);
+    let truth = Arc::new(GroundTruthData {
+        width: w,
+        height: h,
+        planes: vec![GroundTruthPlane {
+            kind: "depth".into(),
+            channels: vec!["Z".into()],
+            samples: vec![1.5; (w * h) as usize],
+        }],
+        notes: serde_json::json!({}),
+    });
+    step1[0].ground_truth = Some(Arc::clone(&truth));
+    let step2 = vec![raw_frame(2, "cam5", 0, &[])];
+    let mut names: Vec<Vec<String>> = [&step1, &step2]
+        .iter()
+        .map(|frames| frames.iter().map(|f| frame_file_name(&f.meta)).collect())
+        .collect();
+    names[0].push(ground_truth_file_name(&step1[0].meta, "depth"));
+    names.push(Vec::new());
+    let seen = Mutex::new(Vec::new());
+    store.commit_steps_with(
+        vec![
+            (record(1, 9.5), step1),
+            (record(2, 12.0), step2),
+            (record(3, 13.0), Vec::new()),
+        ],
+        RawCompression::Deflate,
+        &|i| {
+            let written = names[i].iter().all(|n| frames_dir.join(n).is_file());
+            // Step 1's ground truth is held here only, once its frame is written.
+            let truth_freed = i != 0 || Arc::strong_count(&truth) == 1;
+            seen.lock().unwrap().push((i, written, truth_freed));
+        },
+    )?;
+    let mut seen = seen.into_inner()?;
+    seen.sort();
+    assert_eq!(
+        seen,
+        vec![(0, true, true), (1, true, true), (2, true, true)]
+    );
+    assert_eq!(
+        store.done_steps()?.into_iter().collect::<Vec<_>>(),
+        vec![1, 2, 3]
+    );
+    Ok(())
+}
