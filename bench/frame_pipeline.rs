@@ -286,23 +286,11 @@ fn main() {
     } else {
         "frame memory not kept (not glibc)"
     };
-    match std::env::var(REALTIME_ENV) {
-        Err(_) => stagehand_devices::realtime::set_default_priority(),
-        Ok(v) if v == "off" => {}
-        Ok(v) => {
-            let priority = v
-                .parse::<u8>()
-                .ok()
-                .filter(|p| (1..=stagehand_devices::realtime::MAX_PRIORITY).contains(p))
-                .unwrap_or_else(|| {
-                    panic!(
-                        "{REALTIME_ENV}={v}: expected a priority from 1 to {}, or `off`",
-                        stagehand_devices::realtime::MAX_PRIORITY
-                    )
-                });
-            stagehand_devices::realtime::set_priority(priority);
-        }
-    }
+    let realtime = std::env::var(REALTIME_ENV).ok().map(|v| {
+        stagehand_devices::realtime::parse_choice(&v)
+            .unwrap_or_else(|e| panic!("{REALTIME_ENV}={v}: {e}"))
+    });
+    stagehand_devices::realtime::choose(realtime);
     let args: Vec<String> = std::env::args()
         .skip(1)
         .filter(|a| !a.starts_with("--"))

@@ -46,8 +46,39 @@ pub fn set_priority(priority: u8) {
 
 /// Sets [`DEFAULT_PRIORITY`] for runtime threads started from now on, where the system allows
 /// it: a refusal is logged at info level and the threads keep normal scheduling.
-pub fn set_default_priority() {
+fn set_default_priority() {
     let _ = PRIORITY.set(DEFAULT_PRIORITY);
+}
+
+/// A `--realtime-priority` value: a `SCHED_FIFO` priority, or `off` for normal scheduling.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Choice {
+    Priority(u8),
+    Off,
+}
+
+/// Parses a `--realtime-priority` value: a priority from 1 to [`MAX_PRIORITY`], or `off`.
+pub fn parse_choice(value: &str) -> Result<Choice, String> {
+    if value == "off" {
+        return Ok(Choice::Off);
+    }
+    value
+        .parse::<u8>()
+        .ok()
+        .filter(|p| (1..=MAX_PRIORITY).contains(p))
+        .map(Choice::Priority)
+        .ok_or_else(|| format!("expected a priority from 1 to {MAX_PRIORITY}, or `off`"))
+}
+
+/// Sets how runtime threads started from now on are scheduled: as chosen, or at
+/// [`DEFAULT_PRIORITY`] where the system allows it when nothing was chosen. Call it before
+/// building the runtime.
+pub fn choose(choice: Option<Choice>) {
+    match choice {
+        None => set_default_priority(),
+        Some(Choice::Priority(p)) => set_priority(p),
+        Some(Choice::Off) => {}
+    }
 }
 
 /// The priority set with [`set_priority`], if any.

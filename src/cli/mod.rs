@@ -36,28 +36,8 @@ struct Cli {
     /// system allows it), so that paced triggers fire on time while the frame writer keeps the
     /// cores busy; `off` keeps normal scheduling. Needs CAP_SYS_NICE or an RLIMIT_RTPRIO at
     /// least this high (README: "Installing on a lab PC").
-    #[arg(long, global = true, value_name = "PRIORITY|off", value_parser = parse_realtime)]
-    realtime_priority: Option<Realtime>,
-}
-
-/// `--realtime-priority`: a `SCHED_FIFO` priority, or `off`.
-#[derive(Clone, Copy, Debug)]
-enum Realtime {
-    Priority(u8),
-    Off,
-}
-
-fn parse_realtime(value: &str) -> Result<Realtime, String> {
-    use stagehand_devices::realtime::MAX_PRIORITY;
-    if value == "off" {
-        return Ok(Realtime::Off);
-    }
-    value
-        .parse::<u8>()
-        .ok()
-        .filter(|p| (1..=MAX_PRIORITY).contains(p))
-        .map(Realtime::Priority)
-        .ok_or_else(|| format!("expected a priority from 1 to {MAX_PRIORITY}, or `off`"))
+    #[arg(long, global = true, value_name = "PRIORITY|off", value_parser = stagehand_devices::realtime::parse_choice)]
+    realtime_priority: Option<stagehand_devices::realtime::Choice>,
 }
 
 #[derive(Subcommand, Debug)]
@@ -193,11 +173,7 @@ pub fn main() -> i32 {
             return code;
         }
     };
-    match cli.realtime_priority {
-        None => stagehand_devices::realtime::set_default_priority(),
-        Some(Realtime::Priority(p)) => stagehand_devices::realtime::set_priority(p),
-        Some(Realtime::Off) => {}
-    }
+    stagehand_devices::realtime::choose(cli.realtime_priority);
     let _ = tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_env("STAGEHAND_LOG")

@@ -98,11 +98,14 @@ fn assert_runtime_at(priority: u32, banner: &str, threads: &[(String, u32, u32)]
             .all(|(_, p, rt)| *p == SCHED_FIFO && *rt == priority),
         "runtime threads not all SCHED_FIFO {priority}: {threads:?}"
     );
+    assert_all_normal(&others, threads);
+}
+
+/// Asserts that each of `some` (of `threads`) runs at normal scheduling.
+fn assert_all_normal(some: &[&(String, u32, u32)], threads: &[(String, u32, u32)]) {
     assert!(
-        others
-            .iter()
-            .all(|(_, p, rt)| *p == SCHED_OTHER && *rt == 0),
-        "other threads not all normal: {threads:?}"
+        some.iter().all(|(_, p, rt)| *p == SCHED_OTHER && *rt == 0),
+        "threads not all normal: {threads:?}"
     );
 }
 
@@ -131,10 +134,5 @@ fn realtime_priority_off_keeps_every_thread_normal() {
         banner.contains("scheduling: normal (--realtime-priority off)"),
         "{banner}"
     );
-    assert!(
-        threads
-            .iter()
-            .all(|(_, p, rt)| *p == SCHED_OTHER && *rt == 0),
-        "threads not all normal: {threads:?}"
-    );
+    assert_all_normal(&threads.iter().collect::<Vec<_>>(), &threads);
 }
